@@ -80,8 +80,9 @@ def m2c(M: np.ndarray, nu: np.ndarray) -> np.ndarray:
         C[3:, :3] = -Sa
         C[3:, 3:] = -smtrx(b)
         return C
-    # 3 DOF (u, v, r): the surge/sway/yaw sub-block of the 6-DOF formula.
+    # 3 DOF (u, v, r): the surge/sway/yaw sub-block of the 6-DOF formula (all of M's u, v rows,
+    # so off-diagonal surge couplings are not silently dropped).
     u, v, r = nu
-    c13 = -(M[1, 1] * v + M[1, 2] * r)
-    c23 = M[0, 0] * u
+    c13 = -(M[1, 0] * u + M[1, 1] * v + M[1, 2] * r)
+    c23 = M[0, 0] * u + M[0, 1] * v + M[0, 2] * r
     return np.array([[0.0, 0.0, c13], [0.0, 0.0, c23], [-c13, -c23, 0.0]])

@@ -1,0 +1,8 @@
+"""The allocator FMU: thrust allocation: shaft speed commands from the generalised force."""
+
+from components.allocation import AllocatorBlock
+from fmus._slave import BlockSlave
+
+
+class AllocatorSlave(BlockSlave):
+    BLOCK = AllocatorBlock

@@ -1,0 +1,9 @@
+"""The plant FMU: vessel dynamics, thrusters, sensors and environment."""
+
+from components.plant import PlantBlock
+
+from fmus._slave import BlockSlave
+
+
+class PlantSlave(BlockSlave):
+    BLOCK = PlantBlock

@@ -1,0 +1,150 @@
+"""Plots (PNG) and the Markdown report of a run: trajectory, states vs references, thruster use."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")  # files only: runs on machines with no display
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from seafmu.master import RunResult  # noqa: E402
+from seafmu.results import CheckResult  # noqa: E402
+
+ANGLES = {"roll", "pitch", "yaw"}
+
+
+def _find(result: RunResult, var: str) -> str | None:
+    """The first recorded 'instance.var' with this variable name."""
+    return next((k for k in result.signals if k.split(".", 1)[1] == var), None)
+
+
+def plot_trajectory(result: RunResult, path: Path) -> bool:
+    n, e = _find(result, "north"), _find(result, "east")
+    if n is None or e is None:
+        return False
+    fig, ax = plt.subplots(figsize=(6, 6))
+    ax.plot(result.signals[e], result.signals[n], label="true", lw=1.5)
+    nh, eh = _find(result, "north_hat"), _find(result, "east_hat")
+    if nh and eh:
+        ax.plot(result.signals[eh], result.signals[nh], "--", label="estimated", lw=1)
+    nr, er = _find(result, "north_ref"), _find(result, "east_ref")
+    if nr and er:
+        ax.plot(result.signals[er], result.signals[nr], "k+", ms=10, label="setpoints")
+    ax.plot(result.signals[e][0], result.signals[n][0], "go", label="start")
+    ax.set_xlabel("east [m]")
+    ax.set_ylabel("north [m]")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.grid(True, alpha=0.3)
+    ax.legend()
+    ax.set_title(f"{result.scenario.name}: trajectory (NED)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return True
+
+
+def plot_states(result: RunResult, path: Path) -> bool:
+    from components.vessel_spec import ETA_NAMES, NU_NAMES
+
+    names = [n for n in ETA_NAMES[6] + NU_NAMES[6] if _find(result, n)]
+    eta = [n for n in names if n in ETA_NAMES[6]]
+    if not eta:
+        return False
+    fig, axes = plt.subplots(len(eta), 1, figsize=(9, 1.9 * len(eta) + 0.6), sharex=True, squeeze=False)
+    t = result.time
+    for ax, n in zip(axes[:, 0], eta, strict=True):
+        scale, unit = (180 / np.pi, "deg") if n in ANGLES else (1.0, "m")
+        for suffix, style, label in (("", "-", "true"), ("_hat", "--", "estimate"), ("_d", ":", "desired"),
+                                     ("_ref", "-", "reference")):
+            key = _find(result, n + suffix)
+            if key is None:
+                continue
+            y = result.signals[key] * scale
+            kw: dict[str, Any] = {"lw": 0.8} if suffix == "_ref" else {"lw": 1.2}
+            if suffix == "_ref":
+                kw["color"] = "k"
+                kw["alpha"] = 0.5
+            ax.plot(t, y, style, label=label, **kw)
+        ax.set_ylabel(f"{n} [{unit}]")
+        ax.grid(True, alpha=0.3)
+    axes[0, 0].legend(loc="best", fontsize=8, ncol=4)
+    axes[-1, 0].set_xlabel("time [s]")
+    fig.suptitle(f"{result.scenario.name}: states vs references")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return True
+
+
+def plot_thrusters(result: RunResult, path: Path) -> bool:
+    speeds = sorted((k for k in result.signals if k.split(".", 1)[1].startswith("n_")
+                     and k.split(".", 1)[1][2:].isdigit()), key=lambda k: int(k.rsplit("_", 1)[1]))
+    thrusts = sorted((k for k in result.signals if k.split(".", 1)[1].startswith("thrust_")
+                      and k.split(".", 1)[1][7:].isdigit()), key=lambda k: int(k.rsplit("_", 1)[1]))
+    if not speeds and not thrusts:
+        return False
+    fig, axes = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
+    for k in speeds:
+        axes[0].plot(result.time, result.signals[k], lw=1, label=k.split(".", 1)[1])
+    for k in thrusts:
+        axes[1].plot(result.time, result.signals[k], lw=1, label=k.split(".", 1)[1])
+    axes[0].set_ylabel("shaft speed [rev/s]")
+    axes[1].set_ylabel("thrust [N]")
+    axes[1].set_xlabel("time [s]")
+    for ax in axes:
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=7, ncol=4, loc="best")
+    fig.suptitle(f"{result.scenario.name}: thruster use")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return True
+
+
+def write_report(result: RunResult, checks: list[CheckResult], summary: dict[str, Any], out: Path) -> Path:
+    sc = result.scenario
+    figures = []
+    for fn, name, title in ((plot_trajectory, "trajectory.png", "Trajectory"),
+                            (plot_states, "states.png", "States vs references"),
+                            (plot_thrusters, "thrusters.png", "Thruster use")):
+        if fn(result, out / name):
+            figures.append((title, name))
+    lines = [
+        f"# {sc.name}",
+        "",
+        sc.description.strip(),
+        "",
+        "## Run",
+        "",
+        "| item | value |",
+        "|---|---|",
+        f"| vessel | {sc.vessel} |",
+        f"| scenario file | `{sc.source}` |",
+        f"| mode | {result.mode} |",
+        f"| simulated time | {sc.duration:g} s, step {sc.step:g} s |",
+        f"| wall time | {result.wall_time:.3f} s |",
+        f"| real-time factor | {result.realtime_factor:.1f} |",
+    ]
+    for k, v in summary["us_per_step"].items():
+        lines.append(f"| {k} | {v:.1f} µs per step ({result.steps[k]} steps) |")
+    lines += ["", "## Checks", ""]
+    if checks:
+        lines += ["| check | value | bound | result |", "|---|---|---|---|"]
+        for c in checks:
+            lines.append(f"| {c.name} | {c.value:.4g} | {c.bound} | {'PASS' if c.passed else 'FAIL'} |")
+    else:
+        lines.append("No checks in this scenario.")
+    if result.log:
+        lines += ["", "## FMU messages", ""] + [f"- {m}" for m in result.log]
+    lines += ["", "## Figures", ""]
+    for title, name in figures:
+        lines += [f"### {title}", "", f"![{title}]({name})", ""]
+    lines += ["## Files", "", "- `results.csv`: every recorded signal, one column per `instance.variable`",
+              "- `summary.json`: timing, checks and messages, for scripts", ""]
+    path = out / "report.md"
+    path.write_text("\n".join(lines))
+    return path

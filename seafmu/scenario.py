@@ -1,0 +1,380 @@
+"""Scenario files: schema (pydantic), loading, and every check that can fail before a run.
+
+A scenario names a vessel, the FMUs and their order (the Gauss-Seidel order of the master), the
+connections (by matching names, or explicit), parameters, timed events, recorded outputs and
+acceptance checks. Every mistake is reported as one line: ``file: field: what is wrong``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+
+from seafmu.units import UnitError, to_si
+
+REPO = Path(__file__).resolve().parents[1]
+SCENARIO_DIR = REPO / "scenarios"
+DEFAULT_SCENARIO = "minerva2_dp"
+KINDS = ("plant", "observer", "controller", "allocator")
+Value = float | int | str | bool
+
+
+class ScenarioError(ValueError):
+    """A scenario that cannot run; the message is one line naming the file and field."""
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class FmuEntry(_Strict):
+    kind: Literal["plant", "observer", "controller", "allocator"] | None = None
+    fmu: str | None = Field(None, description="path to any FMI 2.0 co-simulation FMU instead of a kind")
+    step_multiple: int = Field(1, ge=1, description="this FMU steps every N master steps")
+    parameters: dict[str, Value] = Field(default_factory=dict)
+
+    @model_validator(mode="after")
+    def _one_source(self) -> FmuEntry:
+        if (self.kind is None) == (self.fmu is None):
+            raise ValueError("give exactly one of 'kind' or 'fmu'")
+        return self
+
+
+class Event(_Strict):
+    time: float = Field(ge=0)
+    set: str = Field(description="instance.variable")
+    value: Value
+
+
+class Check(_Strict):
+    name: str | None = None
+    signal: str
+    minus: str | None = Field(None, description="subtract this signal (e.g. a reference)")
+    metric: Literal["max_abs", "final_abs", "rms", "max", "min", "mean"] = "max_abs"
+    after: float = 0.0
+    before: float | None = None
+    angle: bool = Field(False, description="wrap the difference to (-pi, pi]")
+    max: float | None = None
+    min: float | None = None
+
+    @model_validator(mode="after")
+    def _bound(self) -> Check:
+        if self.max is None and self.min is None:
+            raise ValueError("a check needs 'max' or 'min'")
+        return self
+
+
+class ScenarioModel(_Strict):
+    name: str
+    description: str = ""
+    vessel: str
+    duration: float = Field(gt=0)
+    step: float = Field(gt=0, description="master communication step, s")
+    record_interval: float | None = Field(None, gt=0)
+    fmus: dict[str, FmuEntry] | None = None
+    connect: Literal["auto", "explicit"] = "auto"
+    connections: list[str] = Field(default_factory=list)
+    events: list[Event] = Field(default_factory=list)
+    outputs: list[str] | None = None
+    checks: list[Check] = Field(default_factory=list)
+    plots: dict[str, Any] = Field(default_factory=dict)
+
+
+# -- resolved scenario -------------------------------------------------------------------------
+
+@dataclass
+class VarInfo:
+    name: str
+    causality: str  # input, output, parameter, local...
+    type: str  # real, integer, boolean, string
+    unit: str = ""
+    variability: str = ""
+    min: float | None = None
+    max: float | None = None
+    start: Any = None
+
+
+@dataclass
+class Instance:
+    name: str
+    kind: str | None
+    fmu_file: Path | None
+    step_multiple: int
+    parameters: dict[str, Any]
+    variables: dict[str, VarInfo]
+
+
+@dataclass
+class Scenario:
+    name: str
+    description: str
+    source: Path
+    vessel: str
+    duration: float
+    step: float
+    record_every: int
+    instances: list[Instance]
+    connections: list[tuple[str, str, str, str]]  # src inst, src var, dst inst, dst var
+    events: list[tuple[float, str, str, Any]]
+    outputs: list[tuple[str, str]]
+    checks: list[Check]
+    plots: dict[str, Any] = field(default_factory=dict)
+
+    def instance(self, name: str) -> Instance:
+        return next(i for i in self.instances if i.name == name)
+
+
+def scenario_path(name_or_path: str | Path | None) -> Path:
+    if name_or_path is None:
+        name_or_path = DEFAULT_SCENARIO
+    p = Path(name_or_path)
+    if p.is_file():
+        return p
+    candidate = SCENARIO_DIR / f"{name_or_path}.yaml"
+    if p.suffix in ("", ) and candidate.is_file():
+        return candidate
+    known = ", ".join(sorted(q.stem for q in SCENARIO_DIR.glob("*.yaml")))
+    raise ScenarioError(f"scenario '{name_or_path}': no such file or shipped scenario (shipped: {known})")
+
+
+def load_scenario(name_or_path: str | Path | None = None) -> Scenario:
+    path = scenario_path(name_or_path)
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise ScenarioError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+    except OSError as exc:
+        raise ScenarioError(f"{path}: cannot read ({exc.strerror})") from None
+    if not isinstance(doc, dict):
+        raise ScenarioError(f"{path}: expected a mapping of scenario fields at the top level")
+    try:
+        model = ScenarioModel.model_validate(doc)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        loc = ".".join(str(p) for p in err["loc"]) or "(top level)"
+        msg = err["msg"]
+        if err["type"] == "extra_forbidden":
+            msg = "unknown field"
+        elif err["type"] == "missing":
+            msg = "required field is missing"
+        got = "" if err["type"] in ("missing", "extra_forbidden") else f" (got {err.get('input')!r})"
+        raise ScenarioError(f"{path}: {loc}: {msg}{got}") from None
+    return resolve(model, path)
+
+
+def _fail(path: Path, where: str, msg: str) -> ScenarioError:
+    return ScenarioError(f"{path}: {where}: {msg}")
+
+
+def _split(ref: str, path: Path, where: str) -> tuple[str, str]:
+    if ref.count(".") < 1:
+        raise _fail(path, where, f"'{ref}' must be 'instance.variable'")
+    inst, var = ref.split(".", 1)
+    return inst.strip(), var.strip()
+
+
+def interface_variables(vessel: str, kind: str) -> dict[str, VarInfo]:
+    """Variables of a seafmu FMU kind, from the Block interface (no build needed to validate)."""
+    from components.vessel_spec import load_vessel
+    from fmus.registry import BLOCKS
+
+    iface = BLOCKS[kind].interface(load_vessel(vessel))
+    out: dict[str, VarInfo] = {}
+    groups = (("input", iface.inputs), ("output", iface.outputs), ("parameter", iface.parameters))
+    for causality, sigs in groups:
+        for s in sigs:
+            variability = ("tunable" if s.tunable else "fixed") if causality == "parameter" else "continuous"
+            out[s.name] = VarInfo(s.name, causality, s.type, s.unit, variability, s.min, s.max, s.start)
+    out["vessel_file"] = VarInfo("vessel_file", "parameter", "string", "", "fixed")
+    return out
+
+
+def fmu_file_variables(fmu: Path) -> dict[str, VarInfo]:
+    from fmpy import read_model_description
+
+    md = read_model_description(str(fmu))
+    units = {}
+    out: dict[str, VarInfo] = {}
+    for v in md.modelVariables:
+        units[v.name] = v.unit or (v.declaredType.unit if v.declaredType is not None else "") or ""
+        mn = float(v.min) if v.min is not None else None
+        mx = float(v.max) if v.max is not None else None
+        out[v.name] = VarInfo(v.name, v.causality, v.type.lower(), units[v.name], v.variability, mn, mx,
+                              v.start)
+    return out
+
+
+def _convert(value: Any, info: VarInfo, path: Path, where: str) -> Any:
+    if info.type == "string":
+        if not isinstance(value, str):
+            raise _fail(path, where, f"expected text, got {value!r}")
+        return value
+    if info.type == "boolean":
+        if not isinstance(value, bool):
+            raise _fail(path, where, f"expected true or false, got {value!r}")
+        return value
+    if info.type == "integer":
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise _fail(path, where, f"expected a whole number, got {value!r}")
+        return value
+    try:
+        x = to_si(value, info.unit)
+    except UnitError as exc:
+        raise _fail(path, where, str(exc)) from None
+    if not math.isfinite(x):
+        raise _fail(path, where, f"must be finite, got {value!r}")
+    if info.min is not None and x < info.min - 1e-12:
+        raise _fail(path, where, f"{x:g} {info.unit} is below the minimum {info.min:g}")
+    if info.max is not None and x > info.max + 1e-12:
+        raise _fail(path, where, f"{x:g} {info.unit} is above the maximum {info.max:g}")
+    return x
+
+
+def resolve(model: ScenarioModel, path: Path) -> Scenario:
+    from components.vessel_spec import VesselFileError, bundled_vessels, load_vessel
+
+    try:
+        load_vessel(model.vessel)
+    except VesselFileError as exc:
+        raise _fail(path, "vessel", f"{exc} (bundled: {', '.join(bundled_vessels())})") from None
+
+    entries = model.fmus or {k: FmuEntry(kind=k) for k in KINDS}
+    instances: list[Instance] = []
+    for name, e in entries.items():
+        where = f"fmus.{name}"
+        if e.kind is not None:
+            variables = interface_variables(model.vessel, e.kind)
+            fmu_file = None
+        else:
+            fmu_file = (path.parent / e.fmu).resolve() if not Path(e.fmu).is_absolute() else Path(e.fmu)
+            if not fmu_file.is_file():
+                raise _fail(path, f"{where}.fmu", f"no such FMU file {fmu_file}")
+            try:
+                variables = fmu_file_variables(fmu_file)
+            except Exception as exc:  # fmpy raises many types for broken archives
+                raise _fail(path, f"{where}.fmu", f"not a readable FMU ({exc})") from None
+        params = {}
+        for pname, value in e.parameters.items():
+            info = variables.get(pname)
+            if info is None:
+                raise _fail(path, f"{where}.parameters.{pname}", f"no such variable in FMU '{name}'")
+            if info.causality not in ("parameter", "input"):
+                raise _fail(path, f"{where}.parameters.{pname}", f"is an {info.causality}; it cannot be set")
+            params[pname] = _convert(value, info, path, f"{where}.parameters.{pname}")
+        instances.append(Instance(name, e.kind, fmu_file, e.step_multiple, params, variables))
+    by_name = {i.name: i for i in instances}
+
+    def lookup(ref: str, where: str, causality: tuple[str, ...]) -> tuple[str, str, VarInfo]:
+        inst, var = _split(ref, path, where)
+        if inst not in by_name:
+            raise _fail(path, where, f"unknown FMU '{inst}' in '{ref}' (FMUs: {', '.join(by_name)})")
+        info = by_name[inst].variables.get(var)
+        if info is None:
+            raise _fail(path, where, f"FMU '{inst}' has no variable '{var}'")
+        if info.causality not in causality:
+            raise _fail(path, where, f"'{ref}' is an {info.causality}, expected {' or '.join(causality)}")
+        return inst, var, info
+
+    connections: dict[tuple[str, str], tuple[str, str]] = {}
+    if model.connect == "auto":
+        producers: dict[str, list[str]] = {}
+        for inst in instances:
+            for v in inst.variables.values():
+                if v.causality == "output":
+                    producers.setdefault(v.name, []).append(inst.name)
+        for inst in instances:
+            for v in inst.variables.values():
+                if v.causality != "input":
+                    continue
+                src = [p for p in producers.get(v.name, []) if p != inst.name]
+                if len(src) > 1:
+                    raise _fail(path, "connect", f"input {inst.name}.{v.name} matches outputs of several "
+                                f"FMUs ({', '.join(src)}): connect it explicitly")
+                if src:
+                    connections[(inst.name, v.name)] = (src[0], v.name)
+    for k, text in enumerate(model.connections):
+        where = f"connections[{k}]"
+        if "->" not in text:
+            raise _fail(path, where, f"'{text}' must read 'instance.output -> instance.input'")
+        left, right = (s.strip() for s in text.split("->", 1))
+        si, sv, sinfo = lookup(left, where, ("output",))
+        di, dv, dinfo = lookup(right, where, ("input",))
+        if sinfo.type != dinfo.type:
+            raise _fail(path, where, f"type mismatch: {left} is {sinfo.type}, {right} is {dinfo.type}")
+        if sinfo.unit and dinfo.unit and sinfo.unit != dinfo.unit:
+            raise _fail(path, where, f"unit mismatch: {left} is in {sinfo.unit}, {right} in {dinfo.unit}")
+        connections[(di, dv)] = (si, sv)
+
+    events = []
+    for k, ev in enumerate(model.events):
+        where = f"events[{k}]"
+        inst, var, info = lookup(ev.set, where, ("input", "parameter"))
+        if (inst, var) in connections:
+            raise _fail(path, where, f"{ev.set} is driven by a connection; an event cannot set it")
+        if info.causality == "parameter" and info.variability != "tunable":
+            raise _fail(path, where, f"{ev.set} is a fixed parameter; only tunable ones change during a run")
+        if ev.time > model.duration:
+            raise _fail(path, where, f"time {ev.time} is after the end of the run ({model.duration} s)")
+        events.append((ev.time, inst, var, _convert(ev.value, info, path, f"{where}.value")))
+    events.sort(key=lambda e: e[0])
+
+    ratio = model.duration / model.step
+    if abs(ratio - round(ratio)) > 1e-6 * max(1.0, ratio):
+        raise _fail(path, "step",
+                    f"duration {model.duration} s is not a whole number of steps of {model.step} s")
+    record_every = 1
+    if model.record_interval is not None:
+        r = model.record_interval / model.step
+        if r < 1 - 1e-9 or abs(r - round(r)) > 1e-6:
+            raise _fail(path, "record_interval", f"{model.record_interval} s must be a whole multiple of "
+                        f"the step {model.step} s")
+        record_every = round(r)
+    for inst in instances:
+        if inst.step_multiple * model.step > model.duration:
+            raise _fail(path, f"fmus.{inst.name}.step_multiple", "the FMU step is longer than the run")
+
+    if model.outputs is None:
+        outputs = [(i.name, v.name) for i in instances for v in i.variables.values()
+                   if v.causality == "output" and v.type in ("real", "integer")]
+    else:
+        outputs = []
+        for k, ref in enumerate(model.outputs):
+            inst, var, _ = lookup(ref, f"outputs[{k}]", ("output", "input", "parameter"))
+            outputs.append((inst, var))
+    recorded = set(outputs)
+    for _, inst, var, _ in events:  # setpoints and other event targets belong in the results
+        if (inst, var) not in recorded:
+            outputs.append((inst, var))
+            recorded.add((inst, var))
+    for k, c in enumerate(model.checks):
+        for attr in ("signal", "minus"):
+            ref = getattr(c, attr)
+            if ref is None:
+                continue
+            inst, var, _ = lookup(ref, f"checks[{k}].{attr}", ("output", "input", "parameter"))
+            if (inst, var) not in recorded:
+                outputs.append((inst, var))
+                recorded.add((inst, var))
+        if c.after >= model.duration:
+            raise _fail(path, f"checks[{k}].after", f"{c.after} s is not before the end of the run")
+
+    return Scenario(
+        name=model.name,
+        description=model.description,
+        source=path,
+        vessel=model.vessel,
+        duration=model.duration,
+        step=model.step,
+        record_every=record_every,
+        instances=instances,
+        connections=[(s[0], s[1], d[0], d[1]) for d, s in connections.items()],
+        events=events,
+        outputs=outputs,
+        checks=model.checks,
+        plots=model.plots,
+    )

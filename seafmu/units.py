@@ -1,0 +1,53 @@
+"""Quantities in scenario files: ``"45 deg"``, ``"0.2 kn"``, or a bare number in the variable's SI unit.
+
+A table of the dozen units marine scenarios use, converted to the SI unit each FMU variable
+declares. Written by hand on purpose: the FMUs expose a fixed, small set of SI units, and a full
+units library would add start-up time and a dependency for no extra safety here.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+
+# unit -> (SI unit it converts to, factor)
+_UNITS: dict[str, tuple[str, float]] = {
+    "m": ("m", 1.0), "cm": ("m", 0.01), "mm": ("m", 0.001), "km": ("m", 1000.0), "nmi": ("m", 1852.0),
+    "s": ("s", 1.0), "ms": ("s", 0.001), "min": ("s", 60.0), "h": ("s", 3600.0),
+    "rad": ("rad", 1.0), "deg": ("rad", math.pi / 180.0),
+    "m/s": ("m/s", 1.0), "kn": ("m/s", 1852.0 / 3600.0), "km/h": ("m/s", 1.0 / 3.6),
+    "rad/s": ("rad/s", 1.0), "deg/s": ("rad/s", math.pi / 180.0),
+    "N": ("N", 1.0), "kN": ("N", 1000.0),
+    "N.m": ("N.m", 1.0), "Nm": ("N.m", 1.0), "kN.m": ("N.m", 1000.0),
+    "rev/s": ("rev/s", 1.0), "rps": ("rev/s", 1.0), "rpm": ("rev/s", 1.0 / 60.0),
+    "kg": ("kg", 1.0), "Hz": ("Hz", 1.0), "1": ("1", 1.0),
+}
+
+_QUANTITY = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*([A-Za-z/.]+)\s*$")
+
+
+class UnitError(ValueError):
+    """A value whose unit is unknown or does not fit the variable."""
+
+
+def to_si(value: object, target_unit: str) -> float:
+    """Convert a number or a ``"<number> <unit>"`` string to ``target_unit``."""
+    if isinstance(value, bool):
+        raise UnitError(f"expected a number, got {value!r}")
+    if isinstance(value, int | float):
+        return float(value)
+    if not isinstance(value, str):
+        raise UnitError(f"expected a number or '<number> <unit>', got {value!r}")
+    m = _QUANTITY.match(value)
+    if not m:
+        try:
+            return float(value)
+        except ValueError:
+            raise UnitError(f"expected a number or '<number> <unit>', got {value!r}") from None
+    number, unit = float(m.group(1)), m.group(2)
+    if unit not in _UNITS:
+        raise UnitError(f"unknown unit '{unit}' in {value!r} (known: {', '.join(sorted(_UNITS))})")
+    si, factor = _UNITS[unit]
+    if target_unit and si != target_unit:
+        raise UnitError(f"unit '{unit}' in {value!r} does not fit this variable's unit '{target_unit}'")
+    return number * factor
