@@ -28,6 +28,8 @@ from components.block import Block, Interface, Signal
 from components.thrusters import max_thrust, thrust_to_speed, thruster_matrix
 from components.vessel_spec import VesselSpec
 
+FORCE_UNIT = {"X": "N", "Y": "N", "Z": "N", "K": "N.m", "M": "N.m", "N": "N.m"}
+
 # --- plain functions (usable without the block) -------------------------------------------------
 
 
@@ -155,14 +157,13 @@ class AllocatorBlock(Block):
     def interface(cls, vessel: VesselSpec) -> Interface:
         th = vessel.thrusters
         m = th.count
-        force_unit = {"X": "N", "Y": "N", "Z": "N", "K": "N.m", "M": "N.m", "N": "N.m"}
-        inputs = [Signal(f"tau_{t}", force_unit[t], f"demanded generalised force {t} (body)")
+        inputs = [Signal(f"tau_{t}", FORCE_UNIT[t], f"demanded generalised force {t} (body)")
                   for t in vessel.tau_names]
         outputs = [Signal(f"n_cmd_{i + 1}", "1/s", f"shaft speed command, thruster {th.names[i]} (rev/s)")
                    for i in range(m)]
         outputs += [Signal(f"thrust_cmd_{i + 1}", "N", f"thrust command, thruster {th.names[i]}")
                     for i in range(m)]
-        outputs += [Signal(f"tau_alloc_{t}", force_unit[t], f"allocated generalised force {t} = B T")
+        outputs += [Signal(f"tau_alloc_{t}", FORCE_UNIT[t], f"allocated generalised force {t} = B T")
                     for t in vessel.tau_names]
         outputs.append(Signal("alloc_error", "", "||B T - tau|| after thrust limits (N and N.m mixed)"))
         params = []

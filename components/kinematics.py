@@ -12,9 +12,12 @@ import numpy as np
 
 
 def wrap_angle(a: float | np.ndarray) -> float | np.ndarray:
-    """Map to (-pi, pi]."""
-    w = np.mod(np.asarray(a) + np.pi, 2.0 * np.pi) - np.pi
+    """Map to (-pi, pi]; angles already in range come back bit-identical."""
+    arr = np.asarray(a, dtype=float)
+    inside = (arr > -np.pi) & (arr <= np.pi)
+    w = np.mod(arr + np.pi, 2.0 * np.pi) - np.pi
     w = np.where(w == -np.pi, np.pi, w)
+    w = np.where(inside, arr, w)
     return float(w) if np.ndim(w) == 0 else w
 
 

@@ -26,6 +26,7 @@ import numpy as np
 from components.kinematics import wrap_angle
 
 RK4_DT_MAX = 0.05  # s: largest RK4 sub-step when limits are active
+_TWO_PI = 2.0 * math.pi
 
 
 def _exact_coefficients(omega: float, zeta: float, h: float) -> tuple[float, ...]:
@@ -79,7 +80,7 @@ class ReferenceModel:
         self.x = np.zeros(n)
         self.v = np.zeros(n)
         self.a = np.zeros(n)
-        self._coef_key: tuple | None = None
+        self._coef_h = math.nan
         self.set_dynamics(omega, zeta, v_max, a_max)
 
     def set_dynamics(
@@ -104,7 +105,7 @@ class ReferenceModel:
         self._limited = bool(np.isfinite(self.v_max).any() or np.isfinite(self.a_max).any())
         self._w2 = self.omega**2
         self._2zw = 2.0 * self.zeta * self.omega
-        self._coef_key = None
+        self._coef_h = math.nan
 
     def reset(self, x: Sequence[float] | np.ndarray, v: Sequence[float] | np.ndarray | None = None) -> None:
         """Start the trajectory at x (and v), e.g. at the current estimate for a bumpless start."""
@@ -117,30 +118,36 @@ class ReferenceModel:
     def error(self, x_ref: np.ndarray) -> np.ndarray:
         """x_d - x_ref with angle DOFs wrapped (the short way round)."""
         e = self.x - x_ref
-        if self._angle_idx.size:
-            e[self._angle_idx] = wrap_angle(e[self._angle_idx])
+        ai = self._angle_idx
+        if ai.size:
+            e[ai] = (e[ai] + math.pi) % _TWO_PI - math.pi
         return e
 
-    def step(self, h: float, x_ref: Sequence[float] | np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Advance by h with x_ref held; returns (x_d, v_d, a_d) at the end of the step (copies)."""
+    def step(
+        self, h: float, x_ref: Sequence[float] | np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Advance by h with x_ref held; returns (x_d, v_d, a_d) at the end of the step.
+
+        The returned arrays are the model's own state: copy them before changing them.
+        """
         e0 = self.error(np.asarray(x_ref, dtype=float))
         if self._limited:
             e, v = self._rk4(e0, self.v, h)
         else:
-            key = (h,)
-            if key != self._coef_key:
+            if h != self._coef_h:
                 coef = [_exact_coefficients(w, z, h) for w, z in zip(self.omega, self.zeta, strict=True)]
                 self._coef = np.array(coef).T  # rows p11, p12, p21, p22
-                self._coef_key = key
+                self._coef_h = h
             p11, p12, p21, p22 = self._coef
             e, v = p11 * e0 + p12 * self.v, p21 * e0 + p22 * self.v
         # Only the (wrapped) error was propagated: moving x_d by its change keeps x_d continuous.
-        self.x = self.x + (e - e0)
-        if self._angle_idx.size:
-            self.x[self._angle_idx] = wrap_angle(self.x[self._angle_idx])
-        self.v = v
+        x = self.x + (e - e0)
+        ai = self._angle_idx
+        if ai.size:
+            x[ai] = (x[ai] + math.pi) % _TWO_PI - math.pi
+        self.x, self.v = x, v
         self.a = self._accel(e, v)
-        return self.x.copy(), self.v.copy(), self.a.copy()
+        return self.x, self.v, self.a
 
     def _accel(self, e: np.ndarray, v: np.ndarray) -> np.ndarray:
         a = -self._w2 * e - self._2zw * v

@@ -27,7 +27,9 @@ _EPS = 1e-6  # in units of sample periods: absorbs round-off of t + h at exact s
 class SensorGroup:
     """One sensor (several channels, one rate) reading entries ``index`` of the state vector."""
 
-    def __init__(self, spec: SensorSpec, index: list[int], rng: np.random.Generator, noise_scale: float) -> None:
+    def __init__(
+        self, spec: SensorSpec, index: list[int], rng: np.random.Generator, noise_scale: float
+    ) -> None:
         self.spec = spec
         self.index = np.asarray(index, dtype=int)
         self.rate = float(spec.rate_hz)
@@ -43,7 +45,10 @@ class SensorGroup:
         noise = self.std * self.rng.standard_normal(len(self.index))
         vals = state[self.index] + self.bias + noise
         if self.angle.any():
-            vals[self.angle] = wrap_angle(vals[self.angle])
+            # wrap only what left (-pi, pi]: wrap_angle's mod arithmetic perturbs in-range values
+            out = self.angle & ((vals > math.pi) | (vals <= -math.pi))
+            if out.any():
+                vals[out] = wrap_angle(vals[out])
         self.values = vals
         self.count += 1.0
 
@@ -53,7 +58,8 @@ class SensorGroup:
     def update(self, t: float, h: float, state: np.ndarray) -> bool:
         """Sample ``state`` (the state at t + h) if a sample instant lies in (t, t + h]."""
         if self.last_k is None:
-            self.last_k = math.floor(t * self.rate + _EPS)  # the initial sample served the instant at/before t
+            # the initial sample served the instant at (or just before) the start time t
+            self.last_k = math.floor(t * self.rate + _EPS)
         k = math.floor((t + h) * self.rate + _EPS)
         if k > self.last_k:
             self.last_k = k
@@ -65,7 +71,9 @@ class SensorGroup:
 class SensorSuite:
     """All sensor groups of a vessel; outputs [meas..., count] per group, in file order."""
 
-    def __init__(self, sensors: list[SensorSpec], state_names: list[str], seed: int, noise_scale: float) -> None:
+    def __init__(
+        self, sensors: list[SensorSpec], state_names: list[str], seed: int, noise_scale: float
+    ) -> None:
         children = np.random.SeedSequence(seed).spawn(len(sensors))
         pos = {n: i for i, n in enumerate(state_names)}
         self.groups = [
@@ -85,9 +93,12 @@ class SensorSuite:
         for g in self.groups:
             g.initialise(state)
 
-    def update(self, t: float, h: float, state: np.ndarray) -> None:
+    def update(self, t: float, h: float, state: np.ndarray) -> bool:
+        """Sample every group that is due; True if any took a new sample."""
+        changed = False
         for g in self.groups:
-            g.update(t, h, state)
+            changed = g.update(t, h, state) or changed
+        return changed
 
     def output(self) -> list[float]:
         out: list[float] = []

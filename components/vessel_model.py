@@ -26,8 +26,9 @@ import math
 
 import numpy as np
 
+from components.environment import current_body
 from components.kinematics import J, m2c, rzyx, wrap_angle
-from components.thrusters import clip_speed, speed_to_thrust, thruster_matrix
+from components.thrusters import speed_to_thrust, thruster_matrix
 from components.vessel_spec import VesselSpec
 
 _PI = math.pi
@@ -63,6 +64,7 @@ class VesselModel:
         self._kf = th.k_forward.tolist()
         self._kr = th.k_reverse.tolist()
         self._inv_tc = (1.0 / th.time_constant).tolist()
+        self._n_max = th.n_max.tolist()
         self._quadratic = th.law == "quadratic"
         if dof == 3:
             # rows u and v of M_RB and M_A: [a_x, a_y] = first two components of M nu
@@ -77,21 +79,35 @@ class VesselModel:
             self._g6 = (self.W - self.Bu, gx, gy, gz)
 
     # -- hot path ------------------------------------------------------------------------------
-    def rhs(self, x: np.ndarray, n_cmd: list[float], vc_north: float = 0.0, vc_east: float = 0.0) -> np.ndarray:
-        """x_dot for x = [eta, nu, n]; ``n_cmd`` must already be clipped to +-n_max (a list)."""
+    def rhs(
+        self, x: np.ndarray, n_cmd: list[float], vc_north: float = 0.0, vc_east: float = 0.0,
+        tau_ext: list[float] | None = None,
+    ) -> np.ndarray:
+        """x_dot for x = [eta, nu, n]; ``n_cmd`` already clipped to +-n_max (a list, see ``clip``).
+
+        ``tau_ext``: extra body-frame generalized force (environment, test rigs), added to B T.
+        """
         if self.dof == 6:
-            return self._rhs6(x, n_cmd, vc_north, vc_east)
-        return self._rhs3(x, n_cmd, vc_north, vc_east)
+            return self._rhs6(x, n_cmd, vc_north, vc_east, tau_ext)
+        return self._rhs3(x, n_cmd, vc_north, vc_east, tau_ext)
+
+    def thrust_list(self, n: list[float]) -> list[float]:
+        """Thrust law on a list of shaft speeds (same law as ``thrusters.speed_to_thrust``, faster)."""
+        kk = zip(n, self._kf, self._kr, strict=True)
+        if self._quadratic:
+            return [(a if ni >= 0.0 else b) * ni * abs(ni) for ni, a, b in kk]
+        return [(a if ni >= 0.0 else b) * ni for ni, a, b in kk]
+
+    def clip(self, n_cmd: list[float] | np.ndarray) -> list[float]:
+        """Speed commands limited to +-n_max, as the list ``rhs``/``rk4`` take."""
+        return [min(max(float(c), -m), m) for c, m in zip(n_cmd, self._n_max, strict=True)]
 
     def _thrust_and_lag(self, n: list[float], n_cmd: list[float]) -> tuple[list[float], list[float]]:
-        if self._quadratic:
-            T = [(a if ni >= 0.0 else b) * ni * abs(ni) for ni, a, b in zip(n, self._kf, self._kr, strict=True)]
-        else:
-            T = [(a if ni >= 0.0 else b) * ni for ni, a, b in zip(n, self._kf, self._kr, strict=True)]
         ndot = [(c - ni) * it for ni, c, it in zip(n, n_cmd, self._inv_tc, strict=True)]
-        return T, ndot
+        return self.thrust_list(n), ndot
 
-    def _rhs3(self, x: np.ndarray, n_cmd: list[float], vcn: float, vce: float) -> np.ndarray:
+    def _rhs3(self, x: np.ndarray, n_cmd: list[float], vcn: float, vce: float,
+              tau_ext: list[float] | None) -> np.ndarray:
         _, _, psi, u, v, r, *n = x.tolist()
         c, s = math.cos(psi), math.sin(psi)
         ur, vr = u - (c * vcn + s * vce), v - (-s * vcn + c * vce)
@@ -100,12 +116,15 @@ class VesselModel:
         ax, ay = m11 * u + m12 * v + m13 * r, m21 * u + m22 * v + m23 * r
         ex, ey = a11 * ur + a12 * vr + a13 * r, a21 * ur + a22 * vr + a23 * r
         cor = [-r * (ay + ey), r * (ax + ex), u * ay - v * ax + ur * ey - vr * ex]
+        if tau_ext is not None:
+            cor = [c - te for c, te in zip(cor, tau_ext, strict=True)]
         T, ndot = self._thrust_and_lag(n, n_cmd)
         nur = [ur, vr, r]
         nu_dot = self._K @ np.array([*T, *cor, *nur, abs(ur) * ur, abs(vr) * vr, abs(r) * r])
         return np.array([c * u - s * v, s * u + c * v, r, *nu_dot.tolist(), *ndot])
 
-    def _rhs6(self, x: np.ndarray, n_cmd: list[float], vcn: float, vce: float) -> np.ndarray:
+    def _rhs6(self, x: np.ndarray, n_cmd: list[float], vcn: float, vce: float,
+              tau_ext: list[float] | None) -> np.ndarray:
         _, _, _, phi, theta, psi, u, v, w, p, q, r, *n = x.tolist()
         cphi, sphi = math.cos(phi), math.sin(phi)
         cth, sth = math.cos(theta), math.sin(theta)
@@ -143,6 +162,8 @@ class VesselModel:
             w * a1 - u * a3 + wr * e1 - ur * e3 + r * t1 - p * t3 + gz * sth + gx * R33,
             u * a2 - v * a1 + ur * e2 - vr * e1 + p * t2 - q * t1 - gx * R32 - gy * sth,
         ]
+        if tau_ext is not None:
+            force = [c - te for c, te in zip(force, tau_ext, strict=True)]
         T, ndot = self._thrust_and_lag(n, n_cmd)
         z = np.array(
             [*T, *force, ur, vr, wr, p, q, r, abs(ur) * ur, abs(vr) * vr, abs(wr) * wr, abs(p) * p,
@@ -151,15 +172,15 @@ class VesselModel:
         return np.array([*eta_dot, *(self._K @ z).tolist(), *ndot])
 
     def rk4(self, x: np.ndarray, n_cmd: list[float], dt: float, steps: int = 1,
-            vc_north: float = 0.0, vc_east: float = 0.0) -> np.ndarray:
+            vc_north: float = 0.0, vc_east: float = 0.0, tau_ext: list[float] | None = None) -> np.ndarray:
         """``steps`` fixed RK4 steps of size dt with inputs held; angles wrapped after each step."""
         f = self._rhs6 if self.dof == 6 else self._rhs3
         h2, h6 = 0.5 * dt, dt / 6.0
         for _ in range(steps):
-            k1 = f(x, n_cmd, vc_north, vc_east)
-            k2 = f(x + h2 * k1, n_cmd, vc_north, vc_east)
-            k3 = f(x + h2 * k2, n_cmd, vc_north, vc_east)
-            k4 = f(x + dt * k3, n_cmd, vc_north, vc_east)
+            k1 = f(x, n_cmd, vc_north, vc_east, tau_ext)
+            k2 = f(x + h2 * k1, n_cmd, vc_north, vc_east, tau_ext)
+            k3 = f(x + h2 * k2, n_cmd, vc_north, vc_east, tau_ext)
+            k4 = f(x + dt * k3, n_cmd, vc_north, vc_east, tau_ext)
             x = x + h6 * (k1 + k4 + 2.0 * (k2 + k3))
             for i in self.angle_index:
                 a = x[i]
@@ -175,10 +196,6 @@ class VesselModel:
     def split(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         d = self.dof
         return x[:d], x[d : 2 * d], x[2 * d :]
-
-    def clip(self, n_cmd: np.ndarray) -> list[float]:
-        """Speed commands limited to +-n_max, in the list form ``rhs``/``rk4`` take."""
-        return clip_speed(self.spec.thrusters, n_cmd).tolist()
 
     def thrust(self, n: np.ndarray) -> np.ndarray:
         return speed_to_thrust(self.spec.thrusters, n)
@@ -202,8 +219,6 @@ class VesselModel:
         ])
 
     def current_body(self, eta: np.ndarray, vc_north: float, vc_east: float) -> np.ndarray:
-        from components.environment import current_body
-
         return current_body(eta, vc_north, vc_east)
 
     def derivative(self, eta: np.ndarray, nu: np.ndarray, tau: np.ndarray,
@@ -225,12 +240,15 @@ class VesselModel:
         return 0.5 * float(nu @ self.M @ nu)
 
     def potential_energy(self, eta: np.ndarray) -> float:
-        """U with dU/dt = g(eta)^T nu: (B - W) down + e_z^T R (B r_b - W r_g); 0 for 3 DOF."""
+        """U with dU/dt = g(eta)^T nu: (B - W) down + e_z^T (R - I) (B r_b - W r_g); 0 for 3 DOF.
+
+        Zero when upright at down = 0, so U > 0 measures the energy stored in roll/pitch.
+        """
         if self.dof == 3:
             return 0.0
         R = rzyx(eta[3], eta[4], eta[5])
         c = self.Bu * self.r_b - self.W * self.r_g
-        return float((self.Bu - self.W) * eta[2] + R[2] @ c)
+        return float((self.Bu - self.W) * eta[2] + R[2] @ c - c[2])
 
     def energy(self, x: np.ndarray) -> float:
         eta, nu, _ = self.split(x)

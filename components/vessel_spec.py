@@ -159,7 +159,9 @@ class _Reader:
             raise self.fail(full, f"must be positive, got {val}")
         return val
 
-    def array(self, node: dict, key: str, where: str, shape: tuple[int, ...], default: Any = None) -> np.ndarray:
+    def array(
+        self, node: dict, key: str, where: str, shape: tuple[int, ...], default: Any = None
+    ) -> np.ndarray:
         """A vector, or a matrix given in full or as its diagonal."""
         full = f"{where}.{key}" if where else key
         raw = self.get(node, key, where, required=default is None)
@@ -176,6 +178,20 @@ class _Reader:
         if not np.all(np.isfinite(arr)):
             raise self.fail(full, "must be finite")
         return arr
+
+
+def _unwrap(r: _Reader, node: Any, where: str) -> Any:
+    """Free-form ``extra`` data: ``{value, source}`` leaves become plain values, provenance recorded."""
+    if isinstance(node, dict):
+        if "value" in node:
+            if "source" not in node:
+                raise r.fail(where, "has a value but no 'source' (provenance is required)")
+            r.provenance[where] = str(node["source"])
+            return node["value"]
+        return {k: _unwrap(r, v, f"{where}.{k}") for k, v in node.items()}
+    if isinstance(node, list):
+        return [_unwrap(r, v, f"{where}[{i}]") for i, v in enumerate(node)]
+    return node
 
 
 def _parse(doc: dict, path: Path) -> VesselSpec:
@@ -273,5 +289,5 @@ def _parse(doc: dict, path: Path) -> VesselSpec:
         restoring=restoring,
         source_file=str(path),
         provenance=r.provenance,
-        extra=dict(doc.get("extra", {}) or {}),
+        extra=_unwrap(r, dict(doc.get("extra", {}) or {}), "extra"),
     )

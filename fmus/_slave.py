@@ -53,25 +53,34 @@ class BlockSlave(Fmi2Slave):
         self._params: dict[str, Any] = iface.parameter_defaults()
         self._params[VESSEL_FILE] = ""
         self._param_vr: dict[int, str] = {}
+        self._real_idx: dict[int, int] = {}  # value reference -> index in self._real
         self._block: Block | None = None
 
         for i, s in enumerate(iface.inputs):
             self._real[i] = float(s.start)
+            self._real_idx[len(self.vars)] = i
             self.register_variable(
                 Real(s.name, causality=Fmi2Causality.input, variability=Fmi2Variability.continuous,
                      description=s.description, getter=lambda i=i: float(self._u[i]),
                      setter=lambda v, i=i: self._set_input(i, v))
             )
         for i, s in enumerate(iface.outputs):
+            self._real_idx[len(self.vars)] = n_in + i
             self.register_variable(
                 Real(s.name, causality=Fmi2Causality.output, variability=Fmi2Variability.continuous,
                      initial=Fmi2Initial.calculated, description=s.description,
                      getter=lambda i=i: float(self._y[i]))
             )
-        for k, p in enumerate(real_params):
-            self._real[self._p0 + k] = float(p.start)
+        real_slot = {p.name: self._p0 + k for k, p in enumerate(real_params)}
         for p in iface.parameters:
+            if p.type == "real":
+                self._real[real_slot[p.name]] = float(p.start)
+                self._real_idx[len(self.vars)] = real_slot[p.name]
             self._register_parameter(p)
+        # value reference -> slot, as an array so get/set of many reals is one fancy-index
+        self._vr2slot = np.full(len(self.vars) + 1, -1, dtype=np.intp)
+        for vr, slot in self._real_idx.items():
+            self._vr2slot[vr] = slot
         self.register_variable(
             String(VESSEL_FILE, causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed,
                    description="vessel YAML file to load instead of the bundled one (same interface)",
@@ -96,16 +105,16 @@ class BlockSlave(Fmi2Slave):
         if self._block is not None:
             self._block.set_parameter(name, value)  # raises for fixed parameters after init
         self._params[name] = value
-        vrs = [vr for vr, n in self._param_vr.items() if n == name]
-        if vrs and vrs[0] < len(self._real):
-            self._real[vrs[0]] = float(value)
+        for vr, n in self._param_vr.items():
+            if n == name and vr in self._real_idx:
+                self._real[self._real_idx[vr]] = float(value)
 
     def get_real(self, vrs: list[int]) -> list[float]:
-        return self._real[vrs].tolist()
+        return self._real[self._vr2slot[vrs]].tolist()
 
     def set_real(self, vrs: list[int], values: list[float]) -> None:
         n_in = len(self._u)
-        if all(vr < n_in for vr in vrs):  # the hot path: inputs only
+        if all(vr < n_in for vr in vrs):  # the hot path: inputs (registered first: vr == slot)
             self._u[vrs] = values
             return
         for vr, v in zip(vrs, values, strict=True):

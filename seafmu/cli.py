@@ -26,8 +26,9 @@ def _cmd_check(args: argparse.Namespace) -> int:
     from seafmu.scenario import load_scenario
 
     sc = load_scenario(args.scenario)
-    print(f"{sc.source}: OK — vessel {sc.vessel}, {len(sc.instances)} FMUs, {len(sc.connections)} connections, "
-          f"{len(sc.events)} events, {len(sc.checks)} checks, {round(sc.duration / sc.step)} steps")
+    print(f"{sc.source}: OK — vessel {sc.vessel}, {len(sc.instances)} FMUs, "
+          f"{len(sc.connections)} connections, {len(sc.events)} events, {len(sc.checks)} checks, "
+          f"{round(sc.duration / sc.step)} steps")
     return 0
 
 

@@ -8,11 +8,11 @@ from typing import Any
 import matplotlib
 
 matplotlib.use("Agg")  # files only: runs on machines with no display
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-from seafmu.master import RunResult  # noqa: E402
-from seafmu.results import CheckResult  # noqa: E402
+from seafmu.master import RunResult
+from seafmu.results import CheckResult
 
 ANGLES = {"roll", "pitch", "yaw"}
 

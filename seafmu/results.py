@@ -26,6 +26,16 @@ def _wrap(x: np.ndarray) -> np.ndarray:
     return (x + np.pi) % (2 * np.pi) - np.pi
 
 
+_METRICS = {
+    "max_abs": lambda w: float(np.max(np.abs(w))),
+    "final_abs": lambda w: float(abs(w[-1])),
+    "rms": lambda w: float(np.sqrt(np.mean(w**2))),
+    "max": lambda w: float(np.max(w)),
+    "min": lambda w: float(np.min(w)),
+    "mean": lambda w: float(np.mean(w)),
+}
+
+
 def evaluate_checks(result: RunResult) -> list[CheckResult]:
     out = []
     t = result.time
@@ -44,14 +54,7 @@ def evaluate_checks(result: RunResult) -> list[CheckResult]:
         if w.size == 0 or not np.all(np.isfinite(w)):
             value = math.nan
         else:
-            value = float({
-                "max_abs": lambda: np.max(np.abs(w)),
-                "final_abs": lambda: abs(w[-1]),
-                "rms": lambda: np.sqrt(np.mean(w**2)),
-                "max": lambda: np.max(w),
-                "min": lambda: np.min(w),
-                "mean": lambda: np.mean(w),
-            }[c.metric]())
+            value = _METRICS[c.metric](w)
         ok = math.isfinite(value)
         bounds = []
         if c.max is not None:

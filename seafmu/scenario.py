@@ -8,7 +8,7 @@ acceptance checks. Every mistake is reported as one line: ``file: field: what is
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
@@ -82,7 +82,6 @@ class ScenarioModel(_Strict):
     events: list[Event] = Field(default_factory=list)
     outputs: list[str] | None = None
     checks: list[Check] = Field(default_factory=list)
-    plots: dict[str, Any] = Field(default_factory=dict)
 
 
 # -- resolved scenario -------------------------------------------------------------------------
@@ -123,7 +122,6 @@ class Scenario:
     events: list[tuple[float, str, str, Any]]
     outputs: list[tuple[str, str]]
     checks: list[Check]
-    plots: dict[str, Any] = field(default_factory=dict)
 
     def instance(self, name: str) -> Instance:
         return next(i for i in self.instances if i.name == name)
@@ -228,10 +226,11 @@ def _convert(value: Any, info: VarInfo, path: Path, where: str) -> Any:
         raise _fail(path, where, str(exc)) from None
     if not math.isfinite(x):
         raise _fail(path, where, f"must be finite, got {value!r}")
+    shown = f"{x:g} {info.unit}".strip()
     if info.min is not None and x < info.min - 1e-12:
-        raise _fail(path, where, f"{x:g} {info.unit} is below the minimum {info.min:g}")
+        raise _fail(path, where, f"{shown} is below the minimum {info.min:g}")
     if info.max is not None and x > info.max + 1e-12:
-        raise _fail(path, where, f"{x:g} {info.unit} is above the maximum {info.max:g}")
+        raise _fail(path, where, f"{shown} is above the maximum {info.max:g}")
     return x
 
 
@@ -376,5 +375,4 @@ def resolve(model: ScenarioModel, path: Path) -> Scenario:
         events=events,
         outputs=outputs,
         checks=model.checks,
-        plots=model.plots,
     )

@@ -1,0 +1,370 @@
+"""Observer: discrete extended Kalman filter on position/attitude, body velocity and a bias force.
+
+State x = [eta, nu, b] (3 x dof values) with the vessel's own model and an unknown force b:
+
+    eta_dot = J(eta) nu
+    M nu_dot = tau + b - C(nu) nu - D_L nu - D_Q (|nu| * nu) - g(eta) + w_nu
+    b_dot   = -b / T_b + w_b
+
+The current is not known to the observer, so what it changes in the damping (and anything else
+the model misses: waves, thruster lag, the net buoyancy if the file is off) ends up in b, which the
+controller's integral action then removes. ``tau`` is the allocator's ``tau_alloc`` (achieved
+after thrust limits), not the controller's demand.
+
+Each co-simulation step: (1) prediction to t + h with the model linearised once per sub-step:
+x+ = x + h f + h^2/2 A f and Phi = I + h A + h^2/2 A^2 (second order in h, like the state);
+(2) for every sensor whose ``{sensor}_count`` input changed since the last step, a measurement
+update with that sensor's channels (sequential per sensor, Joseph form, angle innovations
+wrapped); the first sample of a position/attitude channel initialises that state directly.
+Predict-then-update because the plant time-stamps a sample at the END of the step it was taken in
+(sensors.py) and seafmu's master steps the plant before the observer (Gauss-Seidel), so the
+measurements an observer step sees belong to t + h; tau_alloc (from the allocator, stepped last)
+belongs to t and is held over the step, as the thrusters hold it.
+
+Why hand-written: filterpy/pykalman would need the Jacobian from us anyway and add a Python call
+layer per step; the cost on an 18-state filter is the number of NumPy calls, so the Jacobian is
+analytic (kinematics, restoring, damping) and the Coriolis term uses a precomputed tensor (C(nu) nu
+is quadratic in nu, so one tensor-vector product gives both the Jacobian G(nu) and
+C(nu) nu = G(nu) nu / 2).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from components.allocation import FORCE_UNIT
+from components.block import Block, Interface, Signal
+from components.kinematics import m2c, wrap_angle
+from components.vessel_spec import ANGLE_NAMES, VesselSpec
+
+PREDICT_DT_MAX = 0.05  # s: largest prediction sub-step
+Q_ETA = 1e-8  # (m or rad)^2/s: tiny kinematic process noise, keeps P positive definite
+P0_POSITION = 100.0**2  # m^2 (and rad^2 for angles): before the first fix nothing is known
+P0_VELOCITY = 1.0  # (m/s)^2, (rad/s)^2
+P0_BIAS_ACCEL = 0.1  # m/s^2: initial bias std, as an acceleration (scaled by M_jj into a force)
+R_FLOOR = 1e-12  # smallest measurement variance (a noise-free sensor file must not make S singular)
+
+
+def state_unit(name: str) -> str:
+    """SI unit of a state name (eta or nu)."""
+    if name in ANGLE_NAMES:
+        return "rad"
+    if name in ("p", "q", "r"):
+        return "rad/s"
+    if name in ("u", "v", "w"):
+        return "m/s"
+    return "m"
+
+
+def coriolis_tensor(M: np.ndarray) -> np.ndarray:
+    """G with G @ nu = d(C(nu) nu)/d nu and C(nu) nu = (G @ nu) @ nu / 2, for C = m2c(M, .).
+
+    C(nu) nu = sum_jk T_ijk nu_j nu_k with T_ijk = C(e_j)_ik (m2c is linear in nu), so the
+    Jacobian is sum_k (T_ilk + T_ikl) nu_k.
+    """
+    d = M.shape[0]
+    T = np.stack([m2c(M, np.eye(d)[j]) for j in range(d)], axis=1)  # T[i, j, k] = C(e_j)[i, k]
+    return T + T.transpose(0, 2, 1)
+
+
+class ObserverBlock(Block):
+    """EKF on [eta, nu, bias]; updates only on new sensor samples; reports its position std."""
+
+    kind = "observer"
+
+    @classmethod
+    def interface(cls, vessel: VesselSpec) -> Interface:
+        inputs: list[Signal] = []
+        for s in vessel.sensors:
+            inputs += [Signal(f"meas_{c}", state_unit(c), f"{s.name}: measured {c} (held between samples)")
+                       for c in s.channels]
+            inputs.append(Signal(f"{s.name}_count", "", f"{s.name}: sample counter (a change = new sample)"))
+        inputs += [Signal(f"tau_alloc_{t}", FORCE_UNIT[t], f"allocated generalised force {t}")
+                   for t in vessel.tau_names]
+        outputs = [Signal(f"{n}_hat", state_unit(n), f"estimated {n}") for n in vessel.eta_names]
+        outputs += [Signal(f"{n}_hat", state_unit(n), f"estimated {n}") for n in vessel.nu_names]
+        outputs += [Signal(f"bias_{t}_hat", FORCE_UNIT[t], f"estimated bias force {t} (body)")
+                    for t in vessel.tau_names]
+        outputs.append(Signal("position_std", "m", "sqrt(var north + var east) of the estimate"))
+        params = [
+            Signal("q_velocity", "m/s^2/sqrt(Hz)", "process noise on the body accelerations (model "
+                   "error), same number used for rad/s^2", min=0.0, start=0.02, tunable=True),
+            Signal("q_bias", "m/s^2/sqrt(s)", "random-walk intensity of the bias, as an acceleration "
+                   "(times M_jj gives N/sqrt(s))", min=0.0, start=0.002, tunable=True),
+            Signal("bias_time_constant", "s", "T_b of the bias model b_dot = -b/T_b + w", min=0.0,
+                   start=500.0, tunable=True),
+            Signal("r_scale", "", "measurement variance = r_scale * noise_std^2 from the vessel file",
+                   min=0.0, start=1.0, tunable=True),
+            Signal("innovation_gate", "", "reject a sample whose normalised innovation squared exceeds "
+                   "this (chi-square; 0 = accept all)", min=0.0, start=0.0, tunable=True),
+        ]
+        return Interface(inputs=inputs, outputs=outputs, parameters=params)
+
+    def __init__(self, vessel: VesselSpec, params: dict[str, Any]) -> None:
+        super().__init__(vessel, params)
+        for name, value in self.params.items():
+            self._check(name, value)
+        iface = self.interface(vessel)
+        self._in_names = iface.input_names()
+        d = self.d = vessel.dof
+        n = self.n = 3 * d
+        M = 0.5 * (vessel.M + vessel.M.T)
+        self.Minv = np.linalg.inv(M)
+        self._m_diag = np.diag(M).copy()
+        self._MinvG = np.einsum("ij,jkl->ikl", self.Minv, coriolis_tensor(M))
+        self._MinvDL = self.Minv @ np.asarray(vessel.D_L, dtype=float)
+        self._MinvDQ = self.Minv @ np.asarray(vessel.D_Q, dtype=float)
+        if d == 6:
+            rs = vessel.restoring
+            if rs is None:
+                raise ValueError(f"observer: 6-DOF vessel '{vessel.name}' has no restoring section")
+            gx, gy, gz = (rs.weight * np.asarray(rs.r_g) - rs.buoyancy * np.asarray(rs.r_b)).tolist()
+            self._g6 = (rs.weight - rs.buoyancy, gx, gy, gz)
+        state_names = vessel.eta_names + vessel.nu_names
+        self._angle_list = [i for i, nm in enumerate(vessel.eta_names) if nm in ANGLE_NAMES]
+
+        # Sensors: input slices, state indices, angle masks.
+        self._sensors: list[dict[str, Any]] = []
+        pos = 0
+        for s in vessel.sensors:
+            k = len(s.channels)
+            idx = np.array([state_names.index(c) for c in s.channels])
+            contiguous = bool(np.all(np.diff(idx) == 1))
+            angle = np.array([c in ANGLE_NAMES for c in s.channels])
+            is_eta = np.array([c in vessel.eta_names for c in s.channels])
+            self._sensors.append({
+                "name": s.name,
+                "meas": slice(pos, pos + k),
+                "count": pos + k,
+                "idx": idx,
+                "sel": slice(idx[0], idx[-1] + 1) if contiguous else idx,  # views beat fancy indexing
+                "angle": angle,
+                "has_angle": bool(angle.any()),
+                "is_eta": is_eta,
+                "has_eta": bool(is_eta.any()),
+                "eta_idx": idx[is_eta],
+                "diag": np.diag_indices(k),
+                "var": np.maximum(np.asarray(s.noise_std, dtype=float) ** 2, R_FLOOR),
+            })
+            pos += k + 1
+        self._tau_slice = slice(pos, pos + d)
+        self._n_in = pos + d
+
+        # Constant parts of the Jacobian A = df/dx.
+        self._A = np.zeros((n, n))
+        self._A[d : 2 * d, 2 * d :] = self.Minv
+        self._diag = np.diag_indices(n)
+        self.x = np.zeros(n)
+        p0 = np.concatenate([np.full(d, P0_POSITION), np.full(d, P0_VELOCITY),
+                             (P0_BIAS_ACCEL * self._m_diag) ** 2])
+        self.P = np.diag(p0)
+        self._last_count = np.zeros(len(self._sensors))
+        self._initialised = np.zeros(d, dtype=bool)  # eta states set from a first sample
+        self.n_rejected = 0
+        self._apply_params()
+
+    # -- parameters ----------------------------------------------------------------------------
+    def _check(self, name: str, value: Any) -> None:
+        try:
+            v = float(value)
+        except (TypeError, ValueError):
+            raise ValueError(f"observer: parameter '{name}' must be a number, got {value!r}") from None
+        if not math.isfinite(v):
+            raise ValueError(f"observer: parameter '{name}' must be finite, got {value!r}")
+        if name in ("bias_time_constant", "r_scale") and v <= 0.0:
+            raise ValueError(f"observer: parameter '{name}' must be positive, got {value!r}")
+        if v < 0.0:
+            raise ValueError(f"observer: parameter '{name}' must be >= 0, got {value!r}")
+
+    def set_parameter(self, name: str, value: Any) -> None:
+        self._check(name, value)
+        super().set_parameter(name, value)
+        self._apply_params()
+
+    def _apply_params(self) -> None:
+        p, d = self.params, self.d
+        self._inv_tb = 1.0 / float(p["bias_time_constant"])
+        self._A[2 * d :, 2 * d :] = -self._inv_tb * np.eye(d)
+        qv = float(p["q_velocity"]) ** 2
+        qb = (float(p["q_bias"]) * self._m_diag) ** 2
+        self._Qc = np.concatenate([np.full(d, Q_ETA), np.full(d, qv), qb])
+        self._r_scale = float(p["r_scale"])
+        self._gate = float(p["innovation_gate"])
+
+    # -- model ---------------------------------------------------------------------------------
+    def _model(self, x: np.ndarray, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """f(x) and A = df/dx at x (A is self._A, updated in place).
+
+        With S(nu) = M^-1 (G(nu) + D_Q diag(2|nu|)) (both terms are homogeneous of degree 2, so
+        their force is S nu / 2): A_nu,nu = -(S + M^-1 D_L) and
+        nu_dot = M^-1 (tau + b - g) - (S/2 + M^-1 D_L) nu.
+        """
+        d = self.d
+        A = self._A
+        nu = x[d : 2 * d]
+        S = self._MinvG @ nu + self._MinvDQ * (2.0 * np.abs(nu))
+        if d == 6:
+            eta_dot, g = self._kin6(x, A)
+            force = tau + x[12:] - g
+        else:
+            eta_dot = self._kin3(x, A)
+            force = tau + x[6:]
+        A[d : 2 * d, d : 2 * d] = -(S + self._MinvDL)
+        f = np.empty(self.n)
+        f[:d] = eta_dot
+        f[d : 2 * d] = self.Minv @ force - (0.5 * S + self._MinvDL) @ nu
+        f[2 * d :] = -self._inv_tb * x[2 * d :]
+        return f, A
+
+    @staticmethod
+    def _kin3(x: np.ndarray, A: np.ndarray) -> list[float]:
+        """eta_dot; writes d(eta_dot)/d eta and J into A."""
+        psi, u, v, r = x[2:6].tolist()
+        c, s = math.cos(psi), math.sin(psi)
+        A[:3, 2:6] = [[-s * u - c * v, c, -s, 0.0], [c * u - s * v, s, c, 0.0], [0.0, 0.0, 0.0, 1.0]]
+        return [c * u - s * v, s * u + c * v, r]
+
+    def _kin6(self, x: np.ndarray, A: np.ndarray) -> tuple[list[float], np.ndarray]:
+        """eta_dot and restoring g; writes d(eta_dot)/d Theta, J and -M^-1 dg/d(phi, theta) into A."""
+        phi, th, psi, u, v, w, p, q, r = x[3:12].tolist()
+        cf, sf = math.cos(phi), math.sin(phi)
+        ct, st = math.cos(th), math.sin(th)
+        cp, sp = math.cos(psi), math.sin(psi)
+        tt = st / ct
+        R11, R12, R13 = cp * ct, -sp * cf + cp * st * sf, sp * sf + cp * cf * st
+        R21, R22, R23 = sp * ct, cp * cf + sf * st * sp, -cp * sf + st * sp * cf
+        R31, R32, R33 = -st, ct * sf, ct * cf
+        pn = R11 * u + R12 * v + R13 * w
+        pe = R21 * u + R22 * v + R23 * w
+        pd = R31 * u + R32 * v + R33 * w
+        qs = q * sf + r * cf  # recurring in T(Theta) [p, q, r]
+        qc = q * cf - r * sf
+        # d(R nu1)/dphi = R (e_x x nu1); d/dtheta = Rz (e_y x (Ry Rx nu1)); d/dpsi = e_z x (R nu1).
+        c3 = sf * v + cf * w  # third entry of Rx nu1
+        a1, a3 = ct * u + st * c3, -st * u + ct * c3  # entries 1 and 3 of Ry Rx nu1
+        ct2 = ct * ct
+        # Rows of A[0:6, 3:12] = [d(eta_dot)/d Theta | J(eta)].
+        A[:6, 3:12] = [
+            [-R12 * w + R13 * v, cp * a3, -pe, R11, R12, R13, 0.0, 0.0, 0.0],
+            [-R22 * w + R23 * v, sp * a3, pn, R21, R22, R23, 0.0, 0.0, 0.0],
+            [-R32 * w + R33 * v, -a1, 0.0, R31, R32, R33, 0.0, 0.0, 0.0],
+            [qc * tt, qs / ct2, 0.0, 0.0, 0.0, 0.0, 1.0, sf * tt, cf * tt],
+            [-qs, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, cf, -sf],
+            [qc / ct, qs * st / ct2, 0.0, 0.0, 0.0, 0.0, 0.0, sf / ct, cf / ct],
+        ]
+        wb, gx, gy, gz = self._g6
+        g = np.array([
+            wb * st, -wb * ct * sf, -wb * ct * cf,
+            -gy * ct * cf + gz * ct * sf, gz * st + gx * ct * cf, -gx * ct * sf - gy * st,
+        ])
+        dg = np.array([  # columns d/dphi, d/dtheta
+            [0.0, wb * ct],
+            [-wb * ct * cf, wb * st * sf],
+            [wb * ct * sf, wb * st * cf],
+            [gy * ct * sf + gz * ct * cf, gy * st * cf - gz * st * sf],
+            [-gx * ct * sf, gz * ct - gx * st * cf],
+            [-gx * ct * cf, gx * st * sf - gy * ct],
+        ])
+        A[6:12, 3:5] = -(self.Minv @ dg)  # restoring depends on roll and pitch only
+        return [pn, pe, pd, p + qs * tt, qc, qs / ct], g
+
+    # -- filter --------------------------------------------------------------------------------
+    def predict(self, h: float, tau: np.ndarray) -> None:
+        k = max(1, math.ceil(h / PREDICT_DT_MAX - 1e-9))
+        dt = h / k
+        Qd = self._Qc * dt
+        diag = self._diag
+        for _ in range(k):
+            f, A = self._model(self.x, tau)
+            hA = dt * A
+            self.x += dt * (f + 0.5 * (hA @ f))
+            Phi = hA @ hA
+            Phi *= 0.5
+            Phi += hA
+            Phi[diag] += 1.0
+            P = Phi @ self.P @ Phi.T
+            P[diag] += Qd
+            self.P = P
+        self._wrap()
+
+    def update(self, z: np.ndarray, sensor: dict[str, Any]) -> bool:
+        """Measurement update with one sensor's channels; False if rejected by the gate."""
+        sel, var, angle = sensor["sel"], sensor["var"] * self._r_scale, sensor["angle"]
+        if sensor["has_eta"] and not self._initialised[sensor["eta_idx"]].all():
+            return self._first_fix(z, sensor, var)
+        P = self.P
+        y = z - self.x[sel]
+        if sensor["has_angle"]:
+            y[angle] = (y[angle] + math.pi) % (2.0 * math.pi) - math.pi
+        PHt = P[:, sel]  # P H^T (H selects states)
+        S = PHt[sel].copy()  # a view of P when sel is a slice
+        S[sensor["diag"]] += var
+        Sinv = np.linalg.inv(S)
+        if self._gate > 0.0 and float(y @ Sinv @ y) > self._gate:
+            self.n_rejected += 1
+            return False
+        K = PHt @ Sinv
+        self.x += K @ y
+        # Joseph form (I - KH) P (I - KH)^T + K R K^T, written with H = selection of the channels:
+        # (I - KH) P = P - K (H P) and A1 (I - KH)^T = A1 - (A1 H^T) K^T.
+        A1 = P - K @ P[sel, :]
+        P = A1 - A1[:, sel] @ K.T + (K * var) @ K.T
+        P += P.T
+        P *= 0.5
+        self.P = P
+        self._wrap()
+        return True
+
+    def _first_fix(self, z: np.ndarray, sensor: dict[str, Any], var: np.ndarray) -> bool:
+        """First sample of a position/attitude channel: take it as the state, with its noise."""
+        idx = sensor["idx"]
+        fresh = sensor["is_eta"].copy()
+        fresh[fresh] = ~self._initialised[idx[fresh]]
+        fi = idx[fresh]
+        self.x[fi] = z[fresh]
+        self.P[fi, :] = 0.0
+        self.P[:, fi] = 0.0
+        self.P[fi, fi] = var[fresh]
+        self._initialised[fi] = True
+        self._wrap()
+        rest = ~fresh
+        if rest.any():  # channels already initialised (or velocities) in the same sensor
+            sub = {
+                "sel": idx[rest], "idx": idx[rest], "is_eta": sensor["is_eta"][rest],
+                "angle": sensor["angle"][rest], "has_angle": bool(sensor["angle"][rest].any()),
+                "has_eta": False, "eta_idx": idx[:0], "diag": np.diag_indices(int(rest.sum())),
+                "var": sensor["var"][rest],
+            }
+            return self.update(z[rest], sub)
+        return True
+
+    def _wrap(self) -> None:
+        x = self.x
+        for i in self._angle_list:
+            a = x[i]
+            if a > math.pi or a <= -math.pi:
+                x[i] = wrap_angle(a)
+
+    # -- block ---------------------------------------------------------------------------------
+    def output(self) -> np.ndarray:
+        d = self.d
+        P = self.P
+        return np.concatenate([self.x[:2 * d], self.x[2 * d :], [math.sqrt(P[0, 0] + P[1, 1])]])
+
+    def step(self, t: float, h: float, u: np.ndarray) -> np.ndarray:
+        u = np.asarray(u, dtype=float)
+        if u.shape != (self._n_in,):
+            raise ValueError(f"observer: expected {self._n_in} inputs, got {u.shape}")
+        if not np.isfinite(u).all():
+            bad = [n for n, v in zip(self._in_names, u.tolist(), strict=True) if not math.isfinite(v)]
+            raise ValueError(f"observer: input '{bad[0]}' is not finite")
+        self.predict(h, u[self._tau_slice])
+        for i, s in enumerate(self._sensors):
+            c = u[s["count"]]
+            if c != self._last_count[i]:
+                self._last_count[i] = c
+                self.update(u[s["meas"]].copy(), s)
+        return self.output()

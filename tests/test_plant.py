@@ -1,0 +1,283 @@
+"""PlantBlock: interface, Block contract, sensors, current, determinism (no FMI)."""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from components.block import Block
+from components.plant import PlantBlock
+from components.vessel_model import VesselModel
+from components.vessel_spec import VesselSpec, load_vessel
+
+
+@pytest.fixture(scope="module")
+def amv() -> VesselSpec:
+    return load_vessel("amv_osf")
+
+
+@pytest.fixture(scope="module")
+def minerva() -> VesselSpec:
+    return load_vessel("minerva2")
+
+
+def run(block: PlantBlock, inputs: np.ndarray, h: float, t0: float = 0.0) -> np.ndarray:
+    """Step once per row of ``inputs``; outputs after each step."""
+    out = []
+    for k, u in enumerate(inputs):
+        out.append(block.step(t0 + k * h, h, u))
+    return np.array(out)
+
+
+# -- interface ------------------------------------------------------------------------------------
+def test_interface_amv(amv: VesselSpec) -> None:
+    iface = PlantBlock.interface(amv)
+    assert PlantBlock.kind == "plant" and issubclass(PlantBlock, Block)
+    assert iface.input_names() == ["n_cmd_1", "n_cmd_2"]
+    assert iface.inputs[0].min == -2.3 and iface.inputs[0].max == 2.3 and iface.inputs[0].unit == "rev/s"
+    assert "screw_port" in iface.inputs[0].description
+    assert iface.output_names() == [
+        "north", "east", "yaw", "u", "v", "r", "n_1", "n_2", "thrust_1", "thrust_2",
+        "meas_north", "meas_east", "gnss_count", "meas_yaw", "compass_count", "meas_r", "gyro_count",
+        "meas_u", "meas_v", "speed_count",
+    ]  # fmt: skip
+    units = {s.name: s.unit for s in iface.outputs}
+    assert units["north"] == "m" and units["yaw"] == "rad" and units["u"] == "m/s" and units["r"] == "rad/s"
+    assert units["meas_yaw"] == "rad" and units["thrust_1"] == "N" and units["n_2"] == "rev/s"
+    params = {p.name: p for p in iface.parameters}
+    assert list(params) == [
+        "seed", "noise_scale", "current_speed", "current_direction",
+        "north_0", "east_0", "yaw_0", "u_0", "v_0", "r_0", "substep",
+    ]  # fmt: skip
+    assert params["seed"].type == "integer" and params["seed"].start == 0
+    assert params["noise_scale"].start == 1.0 and params["noise_scale"].min == 0
+    assert params["current_speed"].tunable and params["current_direction"].tunable
+    assert not params["noise_scale"].tunable and not params["seed"].tunable
+    assert params["substep"].start == 0.01 and params["substep"].min > 0
+
+
+def test_interface_minerva(minerva: VesselSpec) -> None:
+    iface = PlantBlock.interface(minerva)
+    names = iface.output_names()
+    assert iface.input_names() == [f"n_cmd_{i}" for i in range(1, 8)]
+    assert names[:12] == ["north", "east", "down", "roll", "pitch", "yaw", "u", "v", "w", "p", "q", "r"]
+    assert names[12:26] == [f"n_{i}" for i in range(1, 8)] + [f"thrust_{i}" for i in range(1, 8)]
+    assert names[26:] == [
+        "meas_north", "meas_east", "usbl_count", "meas_down", "depth_count",
+        "meas_roll", "meas_pitch", "meas_yaw", "ahrs_count", "meas_u", "meas_v", "meas_w", "dvl_count",
+        "meas_p", "meas_q", "meas_r", "gyro_count",
+    ]  # fmt: skip
+    block = PlantBlock(minerva, {})
+    assert block.output().shape == (len(names),)
+
+
+def test_initial_outputs_and_thrust_consistency(amv: VesselSpec) -> None:
+    block = PlantBlock(amv, {"north_0": 3.0, "yaw_0": 4.0, "u_0": 0.5, "noise_scale": 0.0})
+    y = dict(zip(PlantBlock.interface(amv).output_names(), block.output(), strict=True))
+    assert y["north"] == 3.0 and y["u"] == 0.5
+    assert y["yaw"] == pytest.approx(4.0 - 2 * math.pi)  # wrapped to (-pi, pi]
+    assert y["meas_yaw"] == y["yaw"] and y["gnss_count"] == 1.0  # initial state is the first sample
+    out = run(block, np.tile([2.0, -1.0], (50, 1)), 0.1)
+    y = dict(zip(PlantBlock.interface(amv).output_names(), out[-1], strict=True))
+    assert y["thrust_1"] == pytest.approx(12.63 * y["n_1"])
+    assert y["thrust_2"] == pytest.approx(12.63 * y["n_2"])
+    assert all(-math.pi < o <= math.pi for o in out[:, 2])
+
+
+# -- contract: errors -----------------------------------------------------------------------------
+@pytest.mark.parametrize(
+    ("params", "message"),
+    [
+        ({"noise_scale": -1}, "noise_scale must be >= 0, got -1"),
+        ({"seed": -3}, "seed must be >= 0"),
+        ({"seed": 1.5}, "seed must be an integer"),
+        ({"substep": 0.0}, "substep must be >= "),
+        ({"current_speed": -0.1}, "current_speed must be >= 0"),
+        ({"current_direction": float("nan")}, "current_direction must be finite"),
+        ({"yaw_0": "north"}, "yaw_0 must be a number"),
+        ({"u_0": float("inf")}, "u_0 must be finite"),
+        ({"bogus": 1}, "bogus"),
+    ],
+)
+def test_bad_parameters_raise_naming_them(amv: VesselSpec, params: dict, message: str) -> None:
+    with pytest.raises(ValueError, match=message) as exc:
+        PlantBlock(amv, params)
+    assert "\n" not in str(exc.value)
+
+
+def test_bad_inputs_raise_naming_them(minerva: VesselSpec) -> None:
+    block = PlantBlock(minerva, {})
+    u = np.zeros(7)
+    u[2] = np.nan
+    with pytest.raises(ValueError, match="n_cmd_3"):
+        block.step(0.0, 0.1, u)
+    u[2] = 0.0
+    u[6] = -np.inf
+    with pytest.raises(ValueError, match="n_cmd_7"):
+        block.step(0.0, 0.1, u)
+    with pytest.raises(ValueError, match="7 inputs"):
+        block.step(0.0, 0.1, np.zeros(6))
+    with pytest.raises(ValueError, match="step size"):
+        block.step(0.0, 0.0, np.zeros(7))
+    block.step(0.0, 0.1, np.full(7, 1e300))  # huge but finite: clipped to n_max, not an error
+    assert np.all(np.isfinite(block.output()))
+
+
+def test_set_parameter(amv: VesselSpec) -> None:
+    block = PlantBlock(amv, {})
+    block.set_parameter("current_speed", 0.3)
+    block.set_parameter("current_direction", 1.0)
+    with pytest.raises(ValueError, match="current_speed must be >= 0"):
+        block.set_parameter("current_speed", -1.0)
+    assert block.params["current_speed"] == 0.3  # a rejected value leaves the old one
+    with pytest.raises(ValueError, match="noise_scale"):
+        block.set_parameter("noise_scale", 0.0)  # fixed after initialisation
+    with pytest.raises(ValueError, match="unknown parameter"):
+        block.set_parameter("nope", 0.0)
+
+
+# -- contract: state and determinism --------------------------------------------------------------
+@pytest.mark.parametrize("name", ["amv_osf", "minerva2"])
+def test_deepcopy_round_trip_is_bit_identical(name: str) -> None:
+    spec = load_vessel(name)
+    rng = np.random.default_rng(5)
+    m = spec.thrusters.count
+    inputs = rng.uniform(-1, 1, (400, m)) * spec.thrusters.n_max
+    block = PlantBlock(spec, {"seed": 42, "current_speed": 0.2, "current_direction": 0.7, "substep": 0.02})
+    run(block, inputs[:100], 0.05)
+    saved = copy.deepcopy(block)  # FMU get state
+    a = run(block, inputs[100:], 0.05, t0=5.0)
+    restored = copy.deepcopy(saved)  # FMU set state
+    b = run(restored, inputs[100:], 0.05, t0=5.0)
+    c = run(saved, inputs[100:], 0.05, t0=5.0)  # the snapshot itself was not disturbed
+    np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(a, c)
+    assert restored.vessel is block.vessel  # immutable data shared, not copied
+
+
+def test_same_seed_same_run_different_seed_different(minerva: VesselSpec) -> None:
+    inputs = np.tile([5, 5, 5, 5, 2, 0, 0.0], (200, 1))
+    a = run(PlantBlock(minerva, {"seed": 1}), inputs, 0.05)
+    b = run(PlantBlock(minerva, {"seed": 1}), inputs, 0.05)
+    c = run(PlantBlock(minerva, {"seed": 2}), inputs, 0.05)
+    np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(a[:, :26], c[:, :26])  # the true state does not depend on the seed
+    meas = [i for i, n in enumerate(PlantBlock.interface(minerva).output_names()) if n.startswith("meas_")]
+    assert np.all(a[-1, meas] != c[-1, meas])
+
+
+def test_adding_a_sensor_leaves_the_others_noise_unchanged(amv: VesselSpec) -> None:
+    extra = dataclasses.replace(amv.sensors[0], name="gnss2", channels=["north"])
+    # channels may not repeat within one vessel file, but the block does not care: reuse 'north'
+    bigger = dataclasses.replace(amv, sensors=[*amv.sensors, extra])
+    inputs = np.tile([1.0, 0.8], (100, 1))
+    a = run(PlantBlock(amv, {"seed": 9}), inputs, 0.1)
+    b = run(PlantBlock(bigger, {"seed": 9}), inputs, 0.1)
+    np.testing.assert_array_equal(a, b[:, : a.shape[1]])
+
+
+# -- sensors --------------------------------------------------------------------------------------
+@pytest.mark.parametrize("h", [0.01, 0.05, 0.025])
+def test_sample_counts_follow_rates(minerva: VesselSpec, h: float) -> None:
+    duration = 10.0
+    steps = round(duration / h)
+    block = PlantBlock(minerva, {})
+    out = run(block, np.zeros((steps, 7)), h)
+    names = PlantBlock.interface(minerva).output_names()
+    for s in minerva.sensors:
+        count = out[:, names.index(f"{s.name}_count")]
+        expected = min(s.rate_hz, 1.0 / h)  # at most one sample per co-simulation step
+        assert count[-1] == 1 + round(duration * expected), s.name
+        assert set(np.diff(count)) <= {0.0, 1.0}
+
+
+def test_one_sample_per_step_when_step_longer_than_period(amv: VesselSpec) -> None:
+    block = PlantBlock(amv, {})
+    out = run(block, np.zeros((20, 2)), 0.2)  # gyro is 20 Hz, steps are 5 Hz
+    count = out[:, PlantBlock.interface(amv).output_names().index("gyro_count")]
+    np.testing.assert_array_equal(np.diff(count), 1.0)
+
+
+def test_perfect_sensors_sample_true_state_and_hold(minerva: VesselSpec) -> None:
+    names = PlantBlock.interface(minerva).output_names()
+    block = PlantBlock(minerva, {"noise_scale": 0.0, "yaw_0": 3.1, "r_0": 0.3})
+    inputs = np.tile([8, 3, -4, 6, 5, 2, -2.0], (300, 1))
+    out = run(block, inputs, 0.02)
+    for s in minerva.sensors:
+        count = out[:, names.index(f"{s.name}_count")]
+        for c in s.channels:
+            meas, true = out[:, names.index(f"meas_{c}")], out[:, names.index(c)]
+            new = np.diff(count, prepend=1.0) > 0
+            np.testing.assert_array_equal(meas[new], true[new])
+            held = ~new
+            np.testing.assert_array_equal(meas[1:][held[1:]], meas[:-1][held[1:]])
+    assert np.ptp(out[:, names.index("yaw")]) > math.pi  # yaw crossed +-pi; meas wrapped like truth
+
+
+def test_noise_statistics(amv: VesselSpec) -> None:
+    """At rest the true state is exactly zero, so measurements are pure bias + noise."""
+    bias = np.array([0.3, -0.1])
+    gnss = dataclasses.replace(amv.sensors[0], bias=bias)
+    spec = dataclasses.replace(amv, sensors=[gnss, *amv.sensors[1:]])
+    names = PlantBlock.interface(spec).output_names()
+    for scale in (1.0, 2.0):
+        block = PlantBlock(spec, {"seed": 3, "noise_scale": scale, "substep": 0.2})
+        out = run(block, np.zeros((2000, 2)), 0.2)  # 5 Hz gnss: a new sample every step
+        assert np.all(out[:, :6] == 0.0)
+        for j, c in enumerate(["north", "east"]):
+            x = out[:, names.index(f"meas_{c}")]
+            n = len(x)
+            std = 0.05 * scale
+            assert abs(x.mean() - scale * bias[j]) < 4 * std / math.sqrt(n)
+            assert abs(x.std(ddof=1) / std - 1) < 4 / math.sqrt(2 * n)  # ~ 4 standard errors
+        yaw = out[:, names.index("meas_yaw")]
+        assert abs(yaw.std(ddof=1) / (0.01 * scale) - 1) < 4 / math.sqrt(2 * len(yaw))
+
+
+# -- substeps and current ---------------------------------------------------------------------------
+def test_substeps_are_equal_rk4_steps(minerva: VesselSpec) -> None:
+    model = VesselModel(minerva)
+    u = np.array([8, 3, -4, 6, 5, 2, -2.0])
+    for h, substep, steps in [(0.05, 0.01, 5), (0.025, 0.01, 3), (0.03, 0.01, 3), (0.01, 0.02, 1)]:
+        block = PlantBlock(minerva, {"substep": substep, "u_0": 0.3, "r_0": 0.1})
+        block.step(0.0, h, u)
+        x0 = model.initial_state(np.zeros(6), [0.3, 0, 0, 0, 0, 0.1])
+        x = model.rk4(x0, model.clip(u), h / steps, steps)
+        np.testing.assert_array_equal(block.state, x)
+
+
+@pytest.mark.parametrize(("name", "duration"), [("amv_osf", 300.0), ("minerva2", 600.0)])
+def test_vessel_drifts_with_current_towards_its_direction(name: str, duration: float) -> None:
+    """Current of 0.2 m/s flowing TOWARDS east (pi/2): an unpowered vessel ends up moving east at 0.2.
+
+    Damping is purely quadratic in sway (D_L = 0), so the relative speed only decays like
+    M_vv / (d_Q,vv t): that, not a fixed number, is the tolerance."""
+    spec = load_vessel(name)
+    if spec.restoring is not None:  # neutral buoyancy, so the ROV does not also rise
+        rs = dataclasses.replace(spec.restoring, buoyancy=spec.restoring.weight)
+        spec = dataclasses.replace(spec, restoring=rs)
+    h = 0.5
+    block = PlantBlock(spec, {"current_speed": 0.2, "current_direction": math.pi / 2, "yaw_0": 0.5,
+                              "substep": 0.05})
+    out = run(block, np.zeros((round(duration / h), spec.thrusters.count)), h)
+    window = round(20.0 / h)
+    v_east = (out[-1, 1] - out[-1 - window, 1]) / 20.0
+    v_north = (out[-1, 0] - out[-1 - window, 0]) / 20.0
+    tol = 2.0 * VesselModel(spec).M[1, 1] / (spec.D_Q[1, 1] * duration)
+    assert 0.2 - tol < v_east <= 0.2 + 1e-6 and abs(v_north) < tol
+    d = spec.dof
+    nu_c = block.model.current_body(out[-1, :d], 0.0, 0.2)
+    assert np.max(np.abs(out[-1, d : 2 * d] - nu_c)) < tol  # small relative velocity in the body frame
+
+
+def test_current_is_tunable_during_run(amv: VesselSpec) -> None:
+    block = PlantBlock(amv, {})
+    run(block, np.zeros((10, 2)), 0.1)
+    assert np.all(block.state == 0.0)
+    block.set_parameter("current_speed", 0.5)
+    run(block, np.zeros((10, 2)), 0.1, t0=1.0)
+    assert block.state[0] > 0.0  # carried north

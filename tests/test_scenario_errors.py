@@ -1,0 +1,144 @@
+"""Malformed scenarios: each fails before the run with one line naming the field."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+from seafmu.cli import main
+from seafmu.scenario import ScenarioError, load_scenario
+
+BASE = {
+    "name": "t",
+    "vessel": "minerva2",
+    "duration": 10.0,
+    "step": 0.05,
+    "fmus": {
+        "plant": {"kind": "plant", "parameters": {"current_speed": "0.1 m/s"}},
+        "observer": {"kind": "observer"},
+        "controller": {"kind": "controller"},
+        "allocator": {"kind": "allocator"},
+    },
+    "events": [{"time": 5, "set": "controller.north_ref", "value": "2 m"}],
+    "checks": [{"signal": "plant.north", "metric": "max_abs", "max": 10}],
+}
+
+
+def _write(tmp_path: Path, doc: object) -> Path:
+    p = tmp_path / "scenario.yaml"
+    p.write_text(doc if isinstance(doc, str) else yaml.safe_dump(doc, sort_keys=False))
+    return p
+
+
+def _mutate(change: dict) -> dict:
+    import copy
+
+    doc = copy.deepcopy(BASE)
+    for path, value in change.items():
+        node = doc
+        keys = path.split("/")
+        for k in keys[:-1]:
+            node = node[int(k)] if isinstance(node, list) else node[k]
+        last = keys[-1]
+        if value is _DELETE:
+            del node[last]
+        elif isinstance(node, list):
+            node[int(last)] = value
+        else:
+            node[last] = value
+    return doc
+
+
+_DELETE = object()
+
+CASES = [
+    ("unknown top-level field", {"durration": 5}, "durration: unknown field"),
+    ("missing vessel", {"vessel": _DELETE}, "vessel: required field is missing"),
+    ("unknown vessel", {"vessel": "titanic"}, "vessel: vessel 'titanic'"),
+    ("negative duration", {"duration": -1}, "duration: Input should be greater than 0"),
+    ("step does not divide duration", {"step": 0.3}, "step: duration 10.0 s is not a whole number"),
+    ("unknown FMU in event", {"events/0/set": "ctrl.north_ref"}, "events[0]: unknown FMU 'ctrl'"),
+    ("unknown variable", {"events/0/set": "controller.nort_ref"},
+     "events[0]: FMU 'controller' has no variable 'nort_ref'"),
+    ("wrong type for integer", {"fmus/plant/parameters/seed": 1.5},
+     "fmus.plant.parameters.seed: expected a whole number"),
+    ("unit of the wrong dimension", {"fmus/plant/parameters/current_speed": "0.1 m"},
+     "unit 'm' in '0.1 m' does not fit this variable's unit 'm/s'"),
+    ("unknown unit", {"events/0/value": "3 furlongs"}, "events[0].value: unknown unit 'furlongs'"),
+    ("event on an output", {"events/0/set": "plant.north"}, "'plant.north' is an output"),
+    ("event on a fixed parameter", {"events/0/set": "plant.seed", "events/0/value": 3},
+     "plant.seed is a fixed parameter"),
+    ("event after the end", {"events/0/time": 11}, "events[0]: time 11.0 is after the end"),
+    ("connection without arrow", {"connections": ["plant.north observer.north_hat"]},
+     "connections[0]: 'plant.north observer.north_hat' must read"),
+    ("connection unit mismatch", {"connections": ["plant.north -> controller.yaw_hat"]},
+     "connections[0]: unit mismatch"),
+    ("connection into an output", {"connections": ["plant.north -> observer.north_hat"]},
+     "'observer.north_hat' is an output, expected input"),
+    ("step multiple zero", {"fmus/observer/step_multiple": 0}, "fmus.observer.step_multiple"),
+    ("record interval not a multiple", {"record_interval": 0.07}, "record_interval: 0.07 s must be"),
+    ("check without bound", {"checks/0/max": _DELETE}, "checks.0: Value error, a check needs 'max' or 'min'"),
+    ("parameter below minimum", {"fmus/plant/parameters/noise_scale": -1},
+     "fmus.plant.parameters.noise_scale: -1 is below the minimum 0"),
+    ("parameter that does not exist", {"fmus/plant/parameters/gravity": 9.8},
+     "fmus.plant.parameters.gravity: no such variable"),
+    ("both kind and fmu", {"fmus/observer/fmu": "x.fmu"}, "give exactly one of 'kind' or 'fmu'"),
+    ("missing FMU file", {"fmus/observer": {"fmu": "nowhere.fmu"}}, "fmus.observer.fmu: no such FMU file"),
+]
+
+
+@pytest.mark.parametrize(("label", "change", "expected"), CASES, ids=[c[0] for c in CASES])
+def test_malformed_scenario_names_the_field(tmp_path: Path, label: str, change: dict, expected: str) -> None:
+    path = _write(tmp_path, _mutate(change))
+    with pytest.raises(ScenarioError) as err:
+        load_scenario(path)
+    msg = str(err.value)
+    assert "\n" not in msg
+    assert msg.startswith(str(path))
+    assert expected in msg, msg
+
+
+def test_base_scenario_is_valid(tmp_path: Path) -> None:
+    sc = load_scenario(_write(tmp_path, BASE))
+    assert [i.name for i in sc.instances] == ["plant", "observer", "controller", "allocator"]
+    assert sc.instance("plant").parameters["current_speed"] == pytest.approx(0.1)
+    # auto-connection by names closes the loop in all four directions
+    pairs = {(s, d) for s, _, d, _ in sc.connections}
+    assert {("plant", "observer"), ("observer", "controller"), ("controller", "allocator"),
+            ("allocator", "plant"), ("allocator", "observer")} <= pairs
+    assert sc.events == [(5.0, "controller", "north_ref", 2.0)]
+
+
+def test_units_convert_to_si(tmp_path: Path) -> None:
+    doc = _mutate({"events/0/set": "controller.yaw_ref", "events/0/value": "90 deg",
+                   "fmus/plant/parameters/current_speed": "0.5 kn"})
+    sc = load_scenario(_write(tmp_path, doc))
+    assert sc.events[0][3] == pytest.approx(3.141592653589793 / 2)
+    assert sc.instance("plant").parameters["current_speed"] == pytest.approx(0.5 * 1852 / 3600)
+
+
+def test_not_yaml_and_not_a_mapping(tmp_path: Path) -> None:
+    with pytest.raises(ScenarioError, match="not valid YAML"):
+        load_scenario(_write(tmp_path, "name: [unclosed\n"))
+    with pytest.raises(ScenarioError, match="expected a mapping"):
+        load_scenario(_write(tmp_path, "- a\n- b\n"))
+
+
+def test_cli_prints_one_line_and_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = _write(tmp_path, _mutate({"step": 0.3}))
+    assert main(["check", str(path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("seafmu: error:") and "step" in err[0]
+
+
+def test_cli_entry_point_no_traceback(tmp_path: Path) -> None:
+    path = _write(tmp_path, _mutate({"vessel": "titanic"}))
+    cmd = [sys.executable, "-m", "seafmu.cli", "run", str(path)]
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    assert proc.returncode == 2
+    assert "Traceback" not in proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1
