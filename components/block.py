@@ -57,8 +57,10 @@ class Block(ABC):
       parameter is known;
     - ``__init__(vessel, params)`` receives every parameter (defaults filled in) and raises
       ``ValueError`` with a one-line message naming the parameter when a value is invalid;
+    - ``start(u)`` is called once with the initial inputs and returns the initial outputs, so
+      the master can propagate consistent initial values in causal order;
     - ``output()`` returns the current outputs (aligned with ``interface.outputs``) without
-      stepping, so the master can propagate initial outputs;
+      stepping;
     - ``step(t, h, u)`` advances from t to t + h with inputs ``u`` (aligned with
       ``interface.inputs``) held constant and returns the outputs at t + h;
     - ``set_parameter(name, value)`` changes a tunable parameter during the run;
@@ -76,6 +78,14 @@ class Block(ABC):
     def __init__(self, vessel: Any, params: dict[str, Any]) -> None:
         self.vessel = vessel
         self.params = dict(params)
+
+    def start(self, u: np.ndarray) -> np.ndarray:
+        """Initial outputs given the initial inputs (propagated from upstream blocks at t = 0).
+
+        Default: the inputs do not matter at t = 0. An observer overrides it to start from the
+        first measurements, a controller to start its reference model at the estimate.
+        """
+        return self.output()
 
     @abstractmethod
     def output(self) -> np.ndarray:

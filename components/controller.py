@@ -71,7 +71,8 @@ def pid_pole_placement(vessel: VesselSpec) -> tuple[np.ndarray, np.ndarray, np.n
     omega = np.zeros(vessel.dof)
     for j, name in enumerate(vessel.eta_names):
         if name in ("roll", "pitch"):
-            omega[j] = max(DESIGN_OMEGA_MIN_ATTITUDE, DESIGN_ATTITUDE_FACTOR * math.sqrt(max(g[j], 0.0) / m[j]))
+            hydrostatic = math.sqrt(max(g[j], 0.0) / m[j])
+            omega[j] = max(DESIGN_OMEGA_MIN_ATTITUDE, DESIGN_ATTITUDE_FACTOR * hydrostatic)
         else:
             omega[j] = DESIGN_OMEGA[name]
     kp = np.maximum(m * omega**2 - g, 0.0)

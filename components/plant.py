@@ -11,7 +11,7 @@ import numpy as np
 
 from components.block import Block, Interface, Signal, full_params
 from components.environment import Current
-from components.kinematics import wrap_angle
+from components.kinematics import J, wrap_angle
 from components.sensors import SensorSuite
 from components.vessel_model import VesselModel
 from components.vessel_spec import ANGLE_NAMES, VesselSpec
@@ -49,6 +49,10 @@ class PlantBlock(Block):
             outputs += [Signal(f"meas_{c}", units[c], f"{c} measured by {s.name} ({s.rate_hz:g} Hz), held")
                         for c in s.channels]
             outputs.append(Signal(f"{s.name}_count", "", f"samples taken by {s.name}; +1 on each new sample"))
+        outputs += [
+            Signal("course", "rad", "true course over ground (heading when nearly at rest)"),
+            Signal("sog", "m/s", "true speed over ground (horizontal)"),
+        ]
         params = [
             Signal("seed", "", "seed of the sensor noise (same seed, identical run)", min=0, start=0,
                    type="integer"),
@@ -118,7 +122,16 @@ class PlantBlock(Block):
             self._sensor_out = self._sensors.output()
         x = self._x.tolist()
         thrust = self._model.thrust_list(x[2 * self.vessel.dof :])
-        return np.array(x + thrust + self._sensor_out)
+        return np.array(x + thrust + self._sensor_out + self._course_sog())
+
+    def _course_sog(self) -> list[float]:
+        """Course and speed over ground: what a surface vessel's crab-angle compensation aims at."""
+        d = self.vessel.dof
+        eta_dot = J(self._x[:d]) @ self._x[d : 2 * d]
+        vn, ve = float(eta_dot[0]), float(eta_dot[1])
+        sog = math.hypot(vn, ve)
+        course = math.atan2(ve, vn) if sog > 1e-6 else float(self._x[d - 1])
+        return [course, sog]
 
     def output(self) -> np.ndarray:
         return self._y.copy()

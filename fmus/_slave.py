@@ -12,6 +12,7 @@ from __future__ import annotations
 import copy
 import math
 import pickle
+import sys
 from typing import Any, ClassVar
 
 import numpy as np
@@ -22,6 +23,13 @@ from components.block import Block
 from components.vessel_spec import VesselSpec, load_vessel
 
 VESSEL_FILE = "vessel_file"
+
+# pythonfmu 0.7.0's C wrapper releases one reference to the slave module's globals dict on every
+# fmi2Instantiate (it DECREFs a borrowed reference while looking for the class). Left alone, the
+# dict is freed after a few instances and the next instantiate fails ("module has no attribute
+# ...") or crashes. Each instance adds the reference back; the generated FMU script holds one
+# more (a function's __globals__) for the very first instantiation. Verified with getrefcount.
+_GLOBALS_REFS: list[dict[str, Any]] = []
 
 
 def _bad(value: float) -> bool:
@@ -38,6 +46,8 @@ class BlockSlave(Fmi2Slave):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(**kwargs)
+        if self.resources:  # inside an FMU host, not at build time
+            _GLOBALS_REFS.append(vars(sys.modules[type(self).__module__]))
         # The bundled vessel file only fixes the interface (thruster count, DOF, sensors); a user
         # vessel file named by the 'vessel_file' parameter is read in exit_initialization_mode.
         self._spec: VesselSpec = load_vessel(self.VESSEL)
@@ -55,6 +65,7 @@ class BlockSlave(Fmi2Slave):
         self._param_vr: dict[int, str] = {}
         self._real_idx: dict[int, int] = {}  # value reference -> index in self._real
         self._block: Block | None = None
+        self._initialising = False
 
         for i, s in enumerate(iface.inputs):
             self._real[i] = float(s.start)
@@ -102,7 +113,7 @@ class BlockSlave(Fmi2Slave):
         self._u[i] = value
 
     def _set_param(self, name: str, value: Any) -> None:
-        if self._block is not None:
+        if self._block is not None and not self._initialising:
             self._block.set_parameter(name, value)  # raises for fixed parameters after init
         self._params[name] = value
         for vr, n in self._param_vr.items():
@@ -110,6 +121,10 @@ class BlockSlave(Fmi2Slave):
                 self._real[self._real_idx[vr]] = float(value)
 
     def get_real(self, vrs: list[int]) -> list[float]:
+        if self._initialising:
+            # FMI lets a host read outputs in initialisation mode, after setting inputs, to
+            # propagate initial values along connections (libcosim does this): compute them.
+            self._guard(self._initialise)
         return self._real[self._vr2slot[vrs]].tolist()
 
     def set_real(self, vrs: list[int], values: list[float]) -> None:
@@ -126,7 +141,11 @@ class BlockSlave(Fmi2Slave):
                 raise ValueError(f"variable {self.vars[vr].name} is an output and cannot be set")
 
     # -- FMI life cycle ------------------------------------------------------------------------
+    def enter_initialization_mode(self) -> None:
+        self._initialising = True
+
     def exit_initialization_mode(self) -> bool:
+        self._initialising = False
         return self._guard(self._initialise)
 
     def _initialise(self) -> None:
@@ -143,7 +162,7 @@ class BlockSlave(Fmi2Slave):
                 )
         params = {k: v for k, v in self._params.items() if k != VESSEL_FILE}
         self._block = self.BLOCK(spec, params)
-        self._y[:] = self._block.output()
+        self._y[:] = self._block.start(self._u.copy())  # inputs set during initialisation mode
 
     def do_step(self, current_time: float, step_size: float) -> bool:
         block = self._block

@@ -523,3 +523,31 @@ def _child_main(argv: list[str]) -> int:
 
 if __name__ == "__main__":
     sys.exit(_child_main(sys.argv[1:]))
+
+
+def run_scenario_with_libcosim(scenario: Any, isolate: bool = True, timeout: float | None = 600.0,
+                               ) -> dict[str, np.ndarray]:
+    """Run a resolved seafmu scenario (``seafmu.scenario.Scenario``) under libcosim instead.
+
+    Same FMUs, parameters, connections, events and recorded signals; only the coupling order
+    differs (Jacobi: one step of delay per connection, see the module docstring).
+    """
+    from seafmu.build import build_fmu
+
+    fmus: dict[str, Path] = {}
+    initial: dict[str, dict[str, float | int | bool | str]] = {}
+    for inst in scenario.instances:
+        if inst.step_multiple != 1:
+            raise RuntimeError(f"{inst.name}: step_multiple {inst.step_multiple} is not supported under "
+                               "libcosim's fixed-step algorithm here (use 1)")
+        fmus[inst.name] = inst.fmu_file or build_fmu(scenario.vessel, inst.kind).path
+        initial[inst.name] = dict(inst.parameters)
+    record: dict[str, list[str]] = {}
+    for inst, var in scenario.outputs:
+        info = scenario.instance(inst).variables[var]
+        if info.type in ("real", "integer"):
+            record.setdefault(inst, []).append(var)
+    out = run_with_libcosim(fmus, scenario.connections, initial, scenario.step, scenario.duration, record,
+                            [(t, i, v, float(x)) for t, i, v, x in scenario.events],
+                            isolate=isolate, timeout=timeout)
+    return out

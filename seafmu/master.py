@@ -57,6 +57,7 @@ class _Unit:
     out_names: list[str]
     in_names: list[str]
 
+    def initialize(self, values: np.ndarray) -> np.ndarray: ...
     def set_inputs(self, values: np.ndarray) -> None: ...
     def get_outputs(self) -> np.ndarray: ...
     def do_step(self, t: float, h: float) -> None: ...
@@ -94,7 +95,15 @@ class BlockUnit(_Unit):
         self.in_names = in_names
         self._in_idx = np.array([all_inputs.index(n) for n in in_names], dtype=int)
         self._all_inputs = all_inputs
-        self._y = np.asarray(self.block.output(), dtype=float)
+        self._y = np.zeros(len(self.out_names))
+
+    def initialize(self, values: np.ndarray) -> np.ndarray:
+        self.set_inputs(values)
+        try:
+            self._y = np.asarray(self.block.start(self._u.copy()), dtype=float)
+        except ValueError as exc:
+            raise SimulationError(f"{self.name}: {exc}") from None
+        return self._y
 
     def set_inputs(self, values: np.ndarray) -> None:
         self._u[self._in_idx] = values
@@ -171,7 +180,6 @@ class FmuUnit(_Unit):
         self._call("enterInitializationMode", self.fmu.enterInitializationMode)
         for k, v in inst.parameters.items():
             self.set_value(k, v)
-        self._call("exitInitializationMode", self.fmu.exitInitializationMode)
 
         out_vr = [self._vars[n].valueReference for n in self.out_names]
         in_vr = [self._vars[n].valueReference for n in in_names]
@@ -204,6 +212,12 @@ class FmuUnit(_Unit):
         detail = msgs[-1].split(": ", 1)[1] if msgs else str(exc)
         return SimulationError(f"FMU '{self.name}' failed in {what}: {detail}")
 
+    def initialize(self, values: np.ndarray) -> np.ndarray:
+        """Inputs set in initialisation mode, then exit it: the FMU starts from upstream values."""
+        self._call("setReal (initial inputs)", lambda: self.set_inputs(values))
+        self._call("exitInitializationMode", self.fmu.exitInitializationMode)
+        return self._call("getReal (initial outputs)", self.get_outputs)
+
     def set_inputs(self, values: np.ndarray) -> None:
         if self._n_in:
             self._in_np[:] = values
@@ -228,7 +242,9 @@ class FmuUnit(_Unit):
     def terminate(self) -> None:
         try:
             self.fmu.terminate()
-            self.fmu.freeInstance()
+            # Free the instance but keep the shared library loaded: unloading pythonfmu's
+            # library and loading it again in the same process makes the next instantiate fail.
+            self.fmu.fmi2FreeInstance(self.fmu.component)
         except Exception:  # an FMU that failed may refuse to terminate; nothing to save then
             pass
 
@@ -277,9 +293,10 @@ def _loop(scenario: Scenario, units: list[_Unit], mode: str, progress: bool, log
         conn = {dv: (si, sv) for si, sv, di, dv in scenario.connections if di == u.name}
         src_idx.append(np.array([slot[conn[n]] for n in u.in_names], dtype=int))
 
-    # Initial outputs, propagated in causal order so every FMU starts from consistent inputs.
-    for u, sl in zip(units, out_slices, strict=True):
-        bus[sl] = u.get_outputs()
+    # Initial outputs, propagated in causal order so every FMU starts from consistent inputs
+    # (inputs fed back from later FMUs, e.g. the allocator's command to the plant, start at 0).
+    for j, (u, sl) in enumerate(zip(units, out_slices, strict=True)):
+        bus[sl] = u.initialize(bus[src_idx[j]])
 
     n_steps = round(scenario.duration / scenario.step)
     rec_every = scenario.record_every

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+from typing import NamedTuple
 
 import numpy as np
 import pytest
@@ -33,9 +34,16 @@ def block(vessel: VesselSpec, **params: object) -> AllocatorBlock:
     return AllocatorBlock(vessel, full_params(AllocatorBlock.interface(vessel), params))
 
 
-def split(vessel: VesselSpec, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+class Out(NamedTuple):
+    n: np.ndarray  # n_cmd
+    T: np.ndarray  # thrust_cmd
+    tau: np.ndarray  # tau_alloc
+    err: float  # alloc_error
+
+
+def split(vessel: VesselSpec, y: np.ndarray) -> Out:
     m, d = vessel.thrusters.count, vessel.dof
-    return y[:m], y[m : 2 * m], y[2 * m : 2 * m + d], float(y[-1])
+    return Out(y[:m], y[m : 2 * m], y[2 * m : 2 * m + d], float(y[-1]))
 
 
 # Thesis, pseudo-inverse with K = 1 (thrust in N per unit of the thruster command).
@@ -60,13 +68,14 @@ def test_minerva_drop_thruster_1_sway(minerva: VesselSpec) -> None:
     T = pseudo_inverse_allocation(B, [0, 100, 0, 0, 0, 0], drop=[0])
     np.testing.assert_allclose(T, expected, atol=0.01)
     # The 6 x 6 system of the remaining thrusters is square: its inverse gives the same thrusts.
-    np.testing.assert_allclose(np.linalg.solve(drop_thruster(B, 0), [0, 100, 0, 0, 0, 0]), expected[1:], atol=0.01)
+    T6 = np.linalg.solve(drop_thruster(B, 0), [0, 100, 0, 0, 0, 0])
+    np.testing.assert_allclose(T6, expected[1:], atol=0.01)
     # Same through the block (thruster 1 disabled), converted to speed and back.
     y = block(minerva, enable_1=0).step(0.0, 0.05, np.array([0, 100.0, 0, 0, 0, 0]))
-    n, T_blk, tau_alloc, err = split(minerva, y)
-    np.testing.assert_allclose(T_blk, expected, atol=0.01)
-    np.testing.assert_allclose(speed_to_thrust(minerva.thrusters, n), expected, atol=0.01)
-    assert err < 1e-9
+    out = split(minerva, y)
+    np.testing.assert_allclose(out.T, expected, atol=0.01)
+    np.testing.assert_allclose(speed_to_thrust(minerva.thrusters, out.n), expected, atol=0.01)
+    assert out.err < 1e-9
 
 
 def test_feasible_demands_are_met_exactly(minerva: VesselSpec) -> None:
@@ -78,11 +87,12 @@ def test_feasible_demands_are_met_exactly(minerva: VesselSpec) -> None:
     for _ in range(50):
         tau = rng.normal(size=6) * [200, 200, 200, 50, 50, 100]
         T = pseudo_inverse_allocation(B, tau)
-        tau *= 0.95 * min(1.0, np.min(np.where(T > 0, T_max / np.maximum(T, 1e-12), T_min / np.minimum(T, -1e-12))))
-        n, T_blk, tau_alloc, err = split(minerva, alloc.step(0.0, 0.05, tau))
-        np.testing.assert_allclose(tau_alloc, tau, atol=1e-8)
-        assert err < 1e-8
-        np.testing.assert_allclose(speed_to_thrust(minerva.thrusters, n), T_blk, rtol=1e-9, atol=1e-9)
+        room = np.where(T > 0, T_max / np.maximum(T, 1e-12), T_min / np.minimum(T, -1e-12))
+        tau *= 0.95 * min(1.0, room.min())
+        out = split(minerva, alloc.step(0.0, 0.05, tau))
+        np.testing.assert_allclose(out.tau, tau, atol=1e-8)
+        assert out.err < 1e-8
+        np.testing.assert_allclose(speed_to_thrust(minerva.thrusters, out.n), out.T, rtol=1e-9, atol=1e-9)
 
 
 def test_saturation_keeps_limits_and_reports_error(minerva: VesselSpec) -> None:
@@ -91,11 +101,11 @@ def test_saturation_keeps_limits_and_reports_error(minerva: VesselSpec) -> None:
     T_min, T_max = max_thrust(minerva.thrusters)
     for _ in range(50):
         tau = rng.normal(size=6) * [3000, 3000, 3000, 800, 800, 1500]
-        n, T, tau_alloc, err = split(minerva, alloc.step(0.0, 0.05, tau))
-        assert np.all(T >= T_min - 1e-9) and np.all(T <= T_max + 1e-9)
-        assert np.all(np.abs(n) <= minerva.thrusters.n_max + 1e-12)
-        assert err > 1.0
-        assert err == pytest.approx(np.linalg.norm(tau_alloc - tau))
+        out = split(minerva, alloc.step(0.0, 0.05, tau))
+        assert np.all(out.T >= T_min - 1e-9) and np.all(out.T <= T_max + 1e-9)
+        assert np.all(np.abs(out.n) <= minerva.thrusters.n_max + 1e-12)
+        assert out.err > 1.0
+        assert out.err == pytest.approx(np.linalg.norm(out.tau - tau))
 
 
 def test_capability_is_where_saturation_starts(minerva: VesselSpec) -> None:
@@ -105,20 +115,20 @@ def test_capability_is_where_saturation_starts(minerva: VesselSpec) -> None:
         for sign in (1.0, -1.0):
             e = np.zeros(6)
             e[j] = sign * cap[j]
-            assert split(minerva, alloc.step(0.0, 0.05, 0.999 * e))[3] < 1e-6
+            assert split(minerva, alloc.step(0.0, 0.05, 0.999 * e)).err < 1e-6
         # Beyond it in the weaker direction the allocator must saturate.
-        errs = [split(minerva, alloc.step(0.0, 0.05, s * 1.05 * cap[j] * np.eye(6)[j]))[3] for s in (1, -1)]
+        errs = [split(minerva, alloc.step(0.0, 0.05, s * 1.05 * cap[j] * np.eye(6)[j])).err for s in (1, -1)]
         assert max(errs) > 1e-3
 
 
 def test_weights_shift_effort_and_are_recomputed(minerva: VesselSpec) -> None:
     alloc = block(minerva)
     tau = np.array([0, 100.0, 0, 0, 0, 0])
-    T0 = split(minerva, alloc.step(0.0, 0.05, tau))[1]
+    T0 = split(minerva, alloc.step(0.0, 0.05, tau)).T
     alloc.set_parameter("w_1", 50.0)
-    n, T1, tau_alloc, err = split(minerva, alloc.step(0.0, 0.05, tau))
-    assert abs(T1[0]) < 0.2 * abs(T0[0])
-    assert err < 1e-8
+    out = split(minerva, alloc.step(0.0, 0.05, tau))
+    assert abs(out.T[0]) < 0.2 * abs(T0[0])
+    assert out.err < 1e-8
     with pytest.raises(ValueError, match="w_2"):
         alloc.set_parameter("w_2", -1.0)
 
@@ -126,14 +136,14 @@ def test_weights_shift_effort_and_are_recomputed(minerva: VesselSpec) -> None:
 def test_front_thrusters_kept_out_of_reverse(minerva: VesselSpec) -> None:
     """Thesis variant: weight 1e8 on thrusters 1 and 2 only when they would go negative."""
     tau = np.array([-100.0, 0, 0, 0, 0, 0])
-    plain = split(minerva, block(minerva).step(0.0, 0.05, tau))[1]
+    plain = split(minerva, block(minerva).step(0.0, 0.05, tau)).T
     assert plain[0] < -30 and plain[1] < -30
     alloc = block(minerva, reverse_weight_1=1e8, reverse_weight_2=1e8)
-    n, T, tau_alloc, err = split(minerva, alloc.step(0.0, 0.05, tau))
-    assert T[0] > -0.01 and T[1] > -0.01
-    assert err < 1e-6  # the aft pair and the verticals still deliver the demand
+    out = split(minerva, alloc.step(0.0, 0.05, tau))
+    assert out.T[0] > -0.01 and out.T[1] > -0.01
+    assert out.err < 1e-6  # the aft pair and the verticals still deliver the demand
     # Forward surge: front thrusters positive anyway, so nothing changes.
-    fwd = split(minerva, alloc.step(0.0, 0.05, -tau))[1]
+    fwd = split(minerva, alloc.step(0.0, 0.05, -tau)).T
     np.testing.assert_allclose(fwd, -plain, atol=1e-9)
 
 
@@ -141,7 +151,7 @@ def test_amv_two_screw_exact_inside_limits(amv: VesselSpec) -> None:
     kx, ly = 12.63, 0.22
     alloc = block(amv)
     tau = np.array([30.0, 0.0, 2.0])
-    n, T, tau_alloc, err = split(amv, alloc.step(0.0, 0.05, tau))
+    n, _, tau_alloc, err = split(amv, alloc.step(0.0, 0.05, tau))
     assert n[0] + n[1] == pytest.approx(tau[0] / kx)
     assert n[0] - n[1] == pytest.approx(tau[2] / (ly * kx))
     np.testing.assert_allclose(tau_alloc[[0, 2]], tau[[0, 2]], atol=1e-9)
@@ -153,18 +163,19 @@ def test_amv_two_screw_exact_inside_limits(amv: VesselSpec) -> None:
 def test_amv_heading_has_priority_over_surge(amv: VesselSpec) -> None:
     alloc = block(amv)
     tau = np.array([100.0, 0.0, 8.0])  # surge beyond 2 x 2.3 rps; yaw alone is feasible
-    n, T, tau_alloc, err = split(amv, alloc.step(0.0, 0.05, tau))
-    assert tau_alloc[2] == pytest.approx(8.0, rel=1e-9)  # yaw moment kept
-    assert 0.0 < tau_alloc[0] < 100.0  # surge reduced
-    assert max(abs(n)) == pytest.approx(2.3)
-    assert np.all(np.abs(n) <= 2.3 + 1e-12)
+    out = split(amv, alloc.step(0.0, 0.05, tau))
+    assert out.tau[2] == pytest.approx(8.0, rel=1e-9)  # yaw moment kept
+    assert 0.0 < out.tau[0] < 100.0  # surge reduced
+    assert max(abs(out.n)) == pytest.approx(2.3)
+    assert np.all(np.abs(out.n) <= 2.3 + 1e-12)
     # Plain clipping of the same demand would have lost yaw moment:
-    n_clip = np.clip([(100 / 12.63 + 8 / (0.22 * 12.63)) / 2, (100 / 12.63 - 8 / (0.22 * 12.63)) / 2], -2.3, 2.3)
+    common, diff = 100 / 12.63, 8 / (0.22 * 12.63)
+    n_clip = np.clip([(common + diff) / 2, (common - diff) / 2], -2.3, 2.3)
     assert 0.22 * 12.63 * (n_clip[0] - n_clip[1]) < 7.0
     # Yaw alone beyond capacity: scaled to the limit, no surge left to give.
-    n, T, tau_alloc, err = split(amv, alloc.step(0.0, 0.05, np.array([30.0, 0.0, -20.0])))
-    np.testing.assert_allclose(n, [-2.3, 2.3])
-    assert tau_alloc[0] == pytest.approx(0.0, abs=1e-9)
+    out = split(amv, alloc.step(0.0, 0.05, np.array([30.0, 0.0, -20.0])))
+    np.testing.assert_allclose(out.n, [-2.3, 2.3])
+    assert out.tau[0] == pytest.approx(0.0, abs=1e-9)
 
 
 def test_priority_allocation_with_asymmetric_limits() -> None:

@@ -45,7 +45,7 @@ def test_critically_damped_step_reaches_reference_without_overshoot() -> None:
     ref = ReferenceModel(2, w, 1.0)
     xs = []
     for k in range(1, 801):
-        x, v, a = ref.step(h, [2.0, -1.0])
+        x = ref.step(h, [2.0, -1.0])[0]
         xs.append(x.copy())
         t = k * h
         # Closed-form step response of the critically damped model.
@@ -84,7 +84,7 @@ def test_velocity_and_acceleration_limits() -> None:
 
 
 def simulate_dp(vessel: VesselSpec, ctl: ControllerBlock, eta_ref: np.ndarray, seconds: float,
-                force_ned: np.ndarray | None = None, h: float = 0.05) -> tuple[np.ndarray, list[np.ndarray]]:
+                force_ned: np.ndarray | None = None, h: float = 0.05) -> np.ndarray:
     """M nu_dot = tau - D nu - G eta + R^T F_ned, eta_dot = J(eta) nu, perfect state to the controller.
 
     D: the vessel's linear damping plus the quadratic damping linearised at 0.1 m/s (rad/s), G the
@@ -96,11 +96,8 @@ def simulate_dp(vessel: VesselSpec, ctl: ControllerBlock, eta_ref: np.ndarray, s
     G = np.diag(restoring_stiffness(vessel))
     eta, nu = np.zeros(6), np.zeros(6)
     F = np.zeros(6) if force_ned is None else np.asarray(force_ned, float)
-    taus = []
     for k in range(round(seconds / h)):
-        y = ctl.step(k * h, h, np.concatenate([eta, nu, eta_ref]))
-        tau = y[:6]
-        taus.append(tau.copy())
+        tau = ctl.step(k * h, h, np.concatenate([eta, nu, eta_ref]))[:6]
         dt = h / 5
         for _ in range(5):
             R = rzyx(*eta[3:6])
@@ -108,19 +105,19 @@ def simulate_dp(vessel: VesselSpec, ctl: ControllerBlock, eta_ref: np.ndarray, s
             nu = nu + dt * (Minv @ (tau - D @ nu - G @ eta + f_body))
             eta = eta + dt * (J(eta) @ nu)
             eta[3:] = wrap_angle(eta[3:])
-    return eta, taus
+    return eta
 
 
 def test_dp_reaches_setpoint_and_integral_removes_disturbance(minerva: VesselSpec) -> None:
     eta_ref = np.array([2.0, -1.5, 1.0, 0.0, 0.0, 1.0])
     force = np.array([150.0, -100.0, 40.0, 0.0, 0.0, 20.0])  # constant in NED: current, buoyancy
-    eta, taus = simulate_dp(minerva, controller(minerva), eta_ref, 200.0, force)
+    eta = simulate_dp(minerva, controller(minerva), eta_ref, 200.0, force)
     err = eta - eta_ref
     assert np.max(np.abs(err[:3])) < 0.01
     assert np.max(np.abs(err[3:])) < 0.002
     # Without integral action the same disturbance leaves an offset of about F / K_p.
     no_i = controller(minerva, **{f"ki_{n}": 0.0 for n in minerva.eta_names})
-    eta_p, _ = simulate_dp(minerva, no_i, eta_ref, 200.0, force)
+    eta_p = simulate_dp(minerva, no_i, eta_ref, 200.0, force)
     kp_north = no_i.params["kp_north"]
     assert abs(eta_p[0] - eta_ref[0]) > 0.5 * 150.0 / kp_north
     # The integral force converged to the disturbance (body frame: rotated by the final heading).

@@ -130,3 +130,15 @@ def test_all_four_fmus_of_both_vessels_in_one_process(built_fmus: dict) -> None:
         assert np.all(np.isfinite(u.get_outputs()))
     for u in units:
         u.terminate()
+
+
+def test_same_fmu_instantiated_many_times_in_one_process(built_fmus: dict) -> None:
+    """pythonfmu 0.7.0 drops a reference to the slave module's globals per instantiation;
+    seafmu's slave compensates. Without it the third instantiate fails or crashes."""
+    log: list[str] = []
+    for _ in range(8):
+        unit = FmuUnit(_instance("amv_osf", "allocator"), built_fmus[("amv_osf", "allocator")], [], log)
+        unit.initialize(np.zeros(0))
+        unit.do_step(0.0, 0.1)
+        unit.terminate()
+    assert log == []

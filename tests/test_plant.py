@@ -43,7 +43,7 @@ def test_interface_amv(amv: VesselSpec) -> None:
     assert iface.output_names() == [
         "north", "east", "yaw", "u", "v", "r", "n_1", "n_2", "thrust_1", "thrust_2",
         "meas_north", "meas_east", "gnss_count", "meas_yaw", "compass_count", "meas_r", "gyro_count",
-        "meas_u", "meas_v", "speed_count",
+        "meas_u", "meas_v", "speed_count", "course", "sog",
     ]  # fmt: skip
     units = {s.name: s.unit for s in iface.outputs}
     assert units["north"] == "m" and units["yaw"] == "rad" and units["u"] == "m/s" and units["r"] == "rad/s"
@@ -69,7 +69,7 @@ def test_interface_minerva(minerva: VesselSpec) -> None:
     assert names[26:] == [
         "meas_north", "meas_east", "usbl_count", "meas_down", "depth_count",
         "meas_roll", "meas_pitch", "meas_yaw", "ahrs_count", "meas_u", "meas_v", "meas_w", "dvl_count",
-        "meas_p", "meas_q", "meas_r", "gyro_count",
+        "meas_p", "meas_q", "meas_r", "gyro_count", "course", "sog",
     ]  # fmt: skip
     block = PlantBlock(minerva, {})
     assert block.output().shape == (len(names),)
@@ -177,7 +177,9 @@ def test_adding_a_sensor_leaves_the_others_noise_unchanged(amv: VesselSpec) -> N
     inputs = np.tile([1.0, 0.8], (100, 1))
     a = run(PlantBlock(amv, {"seed": 9}), inputs, 0.1)
     b = run(PlantBlock(bigger, {"seed": 9}), inputs, 0.1)
-    np.testing.assert_array_equal(a, b[:, : a.shape[1]])
+    k = a.shape[1] - 2  # course and sog come after the sensors
+    np.testing.assert_array_equal(a[:, :k], b[:, :k])
+    np.testing.assert_array_equal(a[:, k:], b[:, -2:])
 
 
 # -- sensors --------------------------------------------------------------------------------------
@@ -281,3 +283,18 @@ def test_current_is_tunable_during_run(amv: VesselSpec) -> None:
     block.set_parameter("current_speed", 0.5)
     run(block, np.zeros((10, 2)), 0.1, t0=1.0)
     assert block.state[0] > 0.0  # carried north
+
+
+def test_course_and_speed_over_ground(amv: VesselSpec) -> None:
+    """Course = heading + crab angle: with a sway current the two differ by atan2(v, u)."""
+    p = PlantBlock(amv, {"noise_scale": 0.0, "current_speed": 0.2, "current_direction": -np.pi / 2})
+    y = p.start(np.zeros(2))
+    for k in range(600):
+        y = p.step(k * 0.05, 0.05, np.array([1.0, 1.0]))
+    names = PlantBlock.interface(amv).output_names()
+    out = dict(zip(names, y, strict=True))
+    vn = out["u"] * np.cos(out["yaw"]) - out["v"] * np.sin(out["yaw"])
+    ve = out["u"] * np.sin(out["yaw"]) + out["v"] * np.cos(out["yaw"])
+    assert out["sog"] == pytest.approx(np.hypot(vn, ve), rel=1e-12)
+    assert out["course"] == pytest.approx(np.arctan2(ve, vn), abs=1e-12)
+    assert abs(out["course"] - out["yaw"]) > 0.05  # drifting west: course is not the heading
