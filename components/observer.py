@@ -31,6 +31,7 @@ C(nu) nu = G(nu) nu / 2).
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -57,6 +58,28 @@ def state_unit(name: str) -> str:
     if name in ("u", "v", "w"):
         return "m/s"
     return "m"
+
+
+@dataclass(frozen=True)
+class _Channels:
+    """The states one sensor measures (H is a selection), with what the update needs precomputed."""
+
+    idx: np.ndarray  # state indices
+    sel: slice | np.ndarray  # the same as a slice when contiguous: views beat fancy indexing
+    angle: np.ndarray  # bool per channel: wrap the innovation
+    has_angle: bool
+    is_eta: np.ndarray  # bool per channel: position/attitude (initialised by the first sample)
+    has_eta: bool
+    eta_idx: np.ndarray
+    diag: tuple[np.ndarray, np.ndarray]
+    var: np.ndarray  # noise variance from the vessel file (before r_scale)
+
+    @classmethod
+    def build(cls, idx: np.ndarray, angle: np.ndarray, is_eta: np.ndarray, var: np.ndarray) -> _Channels:
+        contiguous = bool(np.all(np.diff(idx) == 1))
+        return cls(idx=idx, sel=slice(int(idx[0]), int(idx[-1]) + 1) if contiguous else idx, angle=angle,
+                   has_angle=bool(angle.any()), is_eta=is_eta, has_eta=bool(is_eta.any()),
+                   eta_idx=idx[is_eta], diag=np.diag_indices(len(idx)), var=var)
 
 
 def coriolis_tensor(M: np.ndarray) -> np.ndarray:
@@ -126,29 +149,18 @@ class ObserverBlock(Block):
         state_names = vessel.eta_names + vessel.nu_names
         self._angle_list = [i for i, nm in enumerate(vessel.eta_names) if nm in ANGLE_NAMES]
 
-        # Sensors: input slices, state indices, angle masks.
-        self._sensors: list[dict[str, Any]] = []
+        # Sensors: where their inputs are, which states they measure.
+        self._sensors: list[tuple[slice, int, _Channels]] = []  # (meas inputs, count input, channels)
         pos = 0
         for s in vessel.sensors:
             k = len(s.channels)
-            idx = np.array([state_names.index(c) for c in s.channels])
-            contiguous = bool(np.all(np.diff(idx) == 1))
-            angle = np.array([c in ANGLE_NAMES for c in s.channels])
-            is_eta = np.array([c in vessel.eta_names for c in s.channels])
-            self._sensors.append({
-                "name": s.name,
-                "meas": slice(pos, pos + k),
-                "count": pos + k,
-                "idx": idx,
-                "sel": slice(idx[0], idx[-1] + 1) if contiguous else idx,  # views beat fancy indexing
-                "angle": angle,
-                "has_angle": bool(angle.any()),
-                "is_eta": is_eta,
-                "has_eta": bool(is_eta.any()),
-                "eta_idx": idx[is_eta],
-                "diag": np.diag_indices(k),
-                "var": np.maximum(np.asarray(s.noise_std, dtype=float) ** 2, R_FLOOR),
-            })
+            ch = _Channels.build(
+                np.array([state_names.index(c) for c in s.channels]),
+                np.array([c in ANGLE_NAMES for c in s.channels]),
+                np.array([c in vessel.eta_names for c in s.channels]),
+                np.maximum(np.asarray(s.noise_std, dtype=float) ** 2, R_FLOOR),
+            )
+            self._sensors.append((slice(pos, pos + k), pos + k, ch))
             pos += k + 1
         self._tau_slice = slice(pos, pos + d)
         self._n_in = pos + d
@@ -290,18 +302,18 @@ class ObserverBlock(Block):
             self.P = P
         self._wrap()
 
-    def update(self, z: np.ndarray, sensor: dict[str, Any]) -> bool:
+    def _update(self, z: np.ndarray, ch: _Channels) -> bool:
         """Measurement update with one sensor's channels; False if rejected by the gate."""
-        sel, var, angle = sensor["sel"], sensor["var"] * self._r_scale, sensor["angle"]
-        if sensor["has_eta"] and not self._initialised[sensor["eta_idx"]].all():
-            return self._first_fix(z, sensor, var)
+        if ch.has_eta and not self._initialised[ch.eta_idx].all():
+            return self._first_fix(z, ch)
+        sel, var = ch.sel, ch.var * self._r_scale
         P = self.P
         y = z - self.x[sel]
-        if sensor["has_angle"]:
-            y[angle] = (y[angle] + math.pi) % (2.0 * math.pi) - math.pi
+        if ch.has_angle:
+            y[ch.angle] = (y[ch.angle] + math.pi) % (2.0 * math.pi) - math.pi
         PHt = P[:, sel]  # P H^T (H selects states)
         S = PHt[sel].copy()  # a view of P when sel is a slice
-        S[sensor["diag"]] += var
+        S[ch.diag] += var
         Sinv = np.linalg.inv(S)
         if self._gate > 0.0 and float(y @ Sinv @ y) > self._gate:
             self.n_rejected += 1
@@ -318,27 +330,21 @@ class ObserverBlock(Block):
         self._wrap()
         return True
 
-    def _first_fix(self, z: np.ndarray, sensor: dict[str, Any], var: np.ndarray) -> bool:
+    def _first_fix(self, z: np.ndarray, ch: _Channels) -> bool:
         """First sample of a position/attitude channel: take it as the state, with its noise."""
-        idx = sensor["idx"]
-        fresh = sensor["is_eta"].copy()
-        fresh[fresh] = ~self._initialised[idx[fresh]]
-        fi = idx[fresh]
+        fresh = ch.is_eta.copy()
+        fresh[fresh] = ~self._initialised[ch.idx[fresh]]
+        fi = ch.idx[fresh]
         self.x[fi] = z[fresh]
         self.P[fi, :] = 0.0
         self.P[:, fi] = 0.0
-        self.P[fi, fi] = var[fresh]
+        self.P[fi, fi] = ch.var[fresh] * self._r_scale
         self._initialised[fi] = True
         self._wrap()
         rest = ~fresh
-        if rest.any():  # channels already initialised (or velocities) in the same sensor
-            sub = {
-                "sel": idx[rest], "idx": idx[rest], "is_eta": sensor["is_eta"][rest],
-                "angle": sensor["angle"][rest], "has_angle": bool(sensor["angle"][rest].any()),
-                "has_eta": False, "eta_idx": idx[:0], "diag": np.diag_indices(int(rest.sum())),
-                "var": sensor["var"][rest],
-            }
-            return self.update(z[rest], sub)
+        if rest.any():  # channels of the same sensor already initialised, or velocities
+            sub = _Channels.build(ch.idx[rest], ch.angle[rest], np.zeros(int(rest.sum()), bool), ch.var[rest])
+            return self._update(z[rest], sub)
         return True
 
     def _wrap(self) -> None:
@@ -362,9 +368,9 @@ class ObserverBlock(Block):
             bad = [n for n, v in zip(self._in_names, u.tolist(), strict=True) if not math.isfinite(v)]
             raise ValueError(f"observer: input '{bad[0]}' is not finite")
         self.predict(h, u[self._tau_slice])
-        for i, s in enumerate(self._sensors):
-            c = u[s["count"]]
+        for i, (meas, count, ch) in enumerate(self._sensors):
+            c = u[count]
             if c != self._last_count[i]:
                 self._last_count[i] = c
-                self.update(u[s["meas"]].copy(), s)
+                self._update(u[meas].copy(), ch)
         return self.output()
