@@ -221,6 +221,19 @@ class ControllerBlock(Block):
         self.ref.set_dynamics(float(p["ref_omega"]), float(p["ref_zeta"]), v_max=v_lim)
 
     # -- run -----------------------------------------------------------------------------------
+    def start(self, u: np.ndarray) -> np.ndarray:
+        """Bumpless start: the reference model begins at the initial estimate, no force yet."""
+        u = np.asarray(u, dtype=float)
+        if u.shape == (len(self._in_names),) and np.isfinite(u).all():
+            if self.dof == 6:
+                self.ref.reset(u[:6])
+                self._y[6:] = u[:6]
+            else:
+                self.ref.reset([u[2]])
+                self._y[3] = u[2]
+            self._started = True
+        return self.output()
+
     def output(self) -> np.ndarray:
         return self._y.copy()
 

@@ -360,17 +360,30 @@ class ObserverBlock(Block):
         P = self.P
         return np.concatenate([self.x[:2 * d], self.x[2 * d :], [math.sqrt(P[0, 0] + P[1, 1])]])
 
-    def step(self, t: float, h: float, u: np.ndarray) -> np.ndarray:
+    def _checked(self, u: np.ndarray) -> np.ndarray:
         u = np.asarray(u, dtype=float)
         if u.shape != (self._n_in,):
             raise ValueError(f"observer: expected {self._n_in} inputs, got {u.shape}")
         if not np.isfinite(u).all():
             bad = [n for n, v in zip(self._in_names, u.tolist(), strict=True) if not math.isfinite(v)]
             raise ValueError(f"observer: input '{bad[0]}' is not finite")
+        return u
+
+    def start(self, u: np.ndarray) -> np.ndarray:
+        """Start from the samples the sensors already hold at t = 0 (no prediction yet)."""
+        self._update_sensors(self._checked(u))
+        return self.output()
+
+    def step(self, t: float, h: float, u: np.ndarray) -> np.ndarray:
+        u = self._checked(u)
         self.predict(h, u[self._tau_slice])
+        self._update_sensors(u)
+        return self.output()
+
+    def _update_sensors(self, u: np.ndarray) -> None:
+        """Sequential update with every sensor whose sample counter moved."""
         for i, (meas, count, ch) in enumerate(self._sensors):
             c = u[count]
             if c != self._last_count[i]:
                 self._last_count[i] = c
                 self._update(u[meas].copy(), ch)
-        return self.output()

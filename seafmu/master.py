@@ -236,8 +236,7 @@ class FmuUnit(_Unit):
         vr = [v.valueReference]
         setter = {"Real": self.fmu.setReal, "Integer": self.fmu.setInteger,
                   "Boolean": self.fmu.setBoolean, "String": self.fmu.setString}[v.type]
-        val = value.encode() if v.type == "String" else value
-        self._call(f"set {var}", lambda: setter(vr, [val]))
+        self._call(f"set {var}", lambda: setter(vr, [value]))
 
     def terminate(self) -> None:
         try:

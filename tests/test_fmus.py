@@ -64,6 +64,7 @@ def test_state_round_trip_plant(built_fmus: dict) -> None:
     fmu = unit.fmu
     md = read_model_description(str(built_fmus[("minerva2", "plant")]))
     vr_in = [v.valueReference for v in md.modelVariables if v.causality == "input"]
+    unit.initialize(np.zeros(0))
     fmu.setReal(vr_in, [10.0, 10.0, 10.0, 10.0, 5.0, -3.0, 3.0])
     h = 0.05
     for k in range(40):
@@ -91,7 +92,7 @@ def test_bad_parameter_gives_readable_fmi_error(built_fmus: dict) -> None:
     log: list[str] = []
     with pytest.raises(SimulationError) as err:
         inst = _instance("minerva2", "plant", {"noise_scale": -1.0})
-        FmuUnit(inst, built_fmus[("minerva2", "plant")], [], log)
+        FmuUnit(inst, built_fmus[("minerva2", "plant")], [], log).initialize(np.zeros(0))
     assert "exitInitializationMode" in str(err.value) and "noise_scale" in str(err.value)
     assert "\n" not in str(err.value)
 
@@ -100,13 +101,13 @@ def test_bad_vessel_file_parameter(built_fmus: dict, tmp_path: Path) -> None:
     log: list[str] = []
     inst = _instance("minerva2", "plant", {"vessel_file": str(tmp_path / "missing.yaml")})
     with pytest.raises(SimulationError, match=r"missing\.yaml"):
-        FmuUnit(inst, built_fmus[("minerva2", "plant")], [], log)
+        FmuUnit(inst, built_fmus[("minerva2", "plant")], [], log).initialize(np.zeros(0))
     # a vessel file with another interface (2 screws) is refused, not silently mis-wired
     from components.vessel_spec import vessel_path
 
     inst = _instance("minerva2", "plant", {"vessel_file": str(vessel_path("amv_osf"))})
     with pytest.raises(SimulationError, match="another interface"):
-        FmuUnit(inst, built_fmus[("minerva2", "plant")], [], log)
+        FmuUnit(inst, built_fmus[("minerva2", "plant")], [], log).initialize(np.zeros(0))
 
 
 @pytest.mark.parametrize("scenario", ["minerva2_dp", "amv_osf_autopilot"])
@@ -126,6 +127,7 @@ def test_all_four_fmus_of_both_vessels_in_one_process(built_fmus: dict) -> None:
     log: list[str] = []
     units = [FmuUnit(_instance(v, k), built_fmus[(v, k)], [], log) for v in VESSELS for k in KINDS]
     for u in units:
+        u.initialize(np.zeros(0))
         u.do_step(0.0, 0.05)
         assert np.all(np.isfinite(u.get_outputs()))
     for u in units:

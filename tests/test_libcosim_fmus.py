@@ -2,7 +2,8 @@
 
 libcosim couples by a Jacobi scheme (every connection one step late, see seafmu.libcosim_runner);
 seafmu's master by Gauss-Seidel. The closed loop is the same system with a little more delay,
-so the runs must agree to what that delay explains: centimetres on metre-scale manoeuvres.
+so the runs must agree to what that delay explains: centimetres on metre-scale manoeuvres
+(measured: 3 cm north/east, 2 mm depth, 0.006 rad heading on 3 m steps).
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ def test_libcosim_runs_the_four_fmus_and_agrees_with_seafmu(runs: tuple) -> None
     np.testing.assert_allclose(lc["time"][:: round(0.1 / sc.step)], ms.time, atol=1e-9)
     at = np.searchsorted(lc["time"], ms.time - 1e-9)
     # The same manoeuvre: 3 m north at 40 s, 3 m east at 100 s, holding 5 m depth.
-    for sig, tol in (("plant.north", 0.15), ("plant.east", 0.15), ("plant.down", 0.05), ("plant.yaw", 0.03)):
+    for sig, tol in (("plant.north", 0.06), ("plant.east", 0.06), ("plant.down", 0.01), ("plant.yaw", 0.015)):
         diff = np.abs(lc[sig][at] - ms.signals[sig])
         assert diff.max() < tol, f"{sig}: max difference {diff.max():.3f} (tolerance {tol})"
     # Both reached the setpoints: the agreement is not two runs that stayed put.

@@ -1,0 +1,52 @@
+"""Every shipped scenario runs end to end through its four FMUs and passes its own checks."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from seafmu.cli import main
+from seafmu.master import run
+from seafmu.results import evaluate_checks
+from seafmu.scenario import SCENARIO_DIR, load_scenario
+
+SHIPPED = sorted(p.stem for p in SCENARIO_DIR.glob("*.yaml"))
+
+
+def test_the_issue_scenarios_are_shipped() -> None:
+    assert {"minerva2_dp", "amv_osf_autopilot", "amv_osf_autopilot_current"} <= set(SHIPPED)
+
+
+@pytest.mark.parametrize("name", SHIPPED)
+def test_shipped_scenario_passes_its_checks(built_fmus: dict, name: str) -> None:
+    sc = load_scenario(name)
+    assert len(sc.checks) >= 3, "a shipped scenario is an acceptance test: it needs checks"
+    result = run(sc, progress=False)
+    checks = evaluate_checks(result)
+    failed = [f"{c.name}: {c.value:.4g} ({c.bound})" for c in checks if not c.passed]
+    assert not failed, failed
+    assert result.log == []  # no FMU reported an error or discarded a step
+    assert all(np.all(np.isfinite(v)) for v in result.signals.values())
+
+
+def test_a_check_that_does_not_hold_fails_the_run(built_fmus: dict, tmp_path: Path) -> None:
+    """Checks can fail: tighten one bound of the default scenario and the CLI exits with 1."""
+    text = (SCENARIO_DIR / "amv_osf_autopilot.yaml").read_text()
+    text = text.replace("metric: max, after: 50, max: 1.1}", "metric: max, after: 50, max: 1.0}")
+    path = tmp_path / "tight.yaml"
+    path.write_text(text)
+    assert main(["run", str(path), "-q", "-o", str(tmp_path / "out")]) == 1
+    assert (tmp_path / "out" / "report.md").is_file()
+
+
+def test_default_run_writes_results_report_and_plots(built_fmus: dict, tmp_path: Path) -> None:
+    out = tmp_path / "default"
+    assert main(["run", "-q", "-o", str(out)]) == 0  # no scenario given: the default, minerva2_dp
+    for f in ("results.csv", "summary.json", "report.md", "trajectory.png", "states.png", "thrusters.png"):
+        assert (out / f).is_file() and (out / f).stat().st_size > 0, f
+    header = (out / "results.csv").read_text().splitlines()[0].split(",")
+    assert header[0] == "time" and "plant.north" in header and "controller.north_ref" in header
+    report = (out / "report.md").read_text()
+    assert "real-time factor" in report and "PASS" in report and "FAIL" not in report
