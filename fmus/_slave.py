@@ -88,6 +88,8 @@ class BlockSlave(Fmi2Slave):
                 self._real[real_slot[p.name]] = float(p.start)
                 self._real_idx[len(self.vars)] = real_slot[p.name]
             self._register_parameter(p)
+        self._in_vrs = list(range(n_in))
+        self._out_vrs = list(range(n_in, n_in + n_out))
         # value reference -> slot, as an array so get/set of many reals is one fancy-index
         self._vr2slot = np.full(len(self.vars) + 1, -1, dtype=np.intp)
         for vr, slot in self._real_idx.items():
@@ -125,11 +127,16 @@ class BlockSlave(Fmi2Slave):
             # FMI lets a host read outputs in initialisation mode, after setting inputs, to
             # propagate initial values along connections (libcosim does this): compute them.
             self._guard(self._initialise)
+        if vrs == self._out_vrs:  # the hot path: a master reading all outputs in order
+            return self._y.tolist()
         return self._real[self._vr2slot[vrs]].tolist()
 
     def set_real(self, vrs: list[int], values: list[float]) -> None:
         n_in = len(self._u)
-        if all(vr < n_in for vr in vrs):  # the hot path: inputs (registered first: vr == slot)
+        if vrs == self._in_vrs:  # the hot path: a master setting all inputs in order
+            self._u[:] = values
+            return
+        if vrs and max(vrs) < n_in:  # inputs only (registered first: vr == slot)
             self._u[vrs] = values
             return
         for vr, v in zip(vrs, values, strict=True):
