@@ -1,7 +1,6 @@
 """The controller FMU: DP / autopilot: generalised force from estimates and setpoints."""
 
 from components.controller import ControllerBlock
-
 from fmus._slave import BlockSlave
 
 

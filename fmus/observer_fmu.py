@@ -1,7 +1,6 @@
 """The observer FMU: EKF: position, attitude, velocity and bias estimates from the plant's sensors."""
 
 from components.observer import ObserverBlock
-
 from fmus._slave import BlockSlave
 
 

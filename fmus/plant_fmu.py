@@ -1,7 +1,6 @@
 """The plant FMU: vessel dynamics, thrusters, sensors and environment."""
 
 from components.plant import PlantBlock
-
 from fmus._slave import BlockSlave
 
 
