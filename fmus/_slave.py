@@ -10,7 +10,6 @@ order), so get/set of many variables is one NumPy fancy-index instead of a Pytho
 from __future__ import annotations
 
 import copy
-import math
 import pickle
 import sys
 from typing import Any, ClassVar
@@ -30,10 +29,6 @@ VESSEL_FILE = "vessel_file"
 # ...") or crashes. Each instance adds the reference back; the generated FMU script holds one
 # more (a function's __globals__) for the very first instantiation. Verified with getrefcount.
 _GLOBALS_REFS: list[dict[str, Any]] = []
-
-
-def _bad(value: float) -> bool:
-    return not math.isfinite(value)
 
 
 class BlockSlave(Fmi2Slave):
@@ -129,7 +124,11 @@ class BlockSlave(Fmi2Slave):
             self._guard(self._initialise)
         if vrs == self._out_vrs:  # the hot path: a master reading all outputs in order
             return self._y.tolist()
-        return self._real[self._vr2slot[vrs]].tolist()
+        slots = self._vr2slot[vrs]
+        if (slots < 0).any():
+            bad = [self.vars[vr].name for vr, sl in zip(vrs, slots.tolist(), strict=True) if sl < 0]
+            raise TypeError(f"variable(s) {', '.join(bad)} are not of type Real")
+        return self._real[slots].tolist()
 
     def set_real(self, vrs: list[int], values: list[float]) -> None:
         n_in = len(self._u)
@@ -142,10 +141,12 @@ class BlockSlave(Fmi2Slave):
         for vr, v in zip(vrs, values, strict=True):
             if vr < n_in:
                 self._u[vr] = v
-            elif vr in self._param_vr:
+            elif vr in self._param_vr and vr in self._real_idx:
                 self._guard(lambda vr=vr, v=v: self._set_param(self._param_vr[vr], float(v)))
-            else:
+            elif vr in self._real_idx:
                 raise ValueError(f"variable {self.vars[vr].name} is an output and cannot be set")
+            else:
+                raise TypeError(f"variable {self.vars[vr].name} is not of type Real")
 
     # -- FMI life cycle ------------------------------------------------------------------------
     def enter_initialization_mode(self) -> None:
@@ -179,7 +180,8 @@ class BlockSlave(Fmi2Slave):
         try:
             self._y[:] = block.step(current_time, step_size, self._u)
         except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
-            self.log(f"{self.instance_name}: {exc}", Fmi2Status.error)
+            # pythonfmu reports False as fmi2Discard; a master must treat it as a failed step
+            self.log(str(exc), Fmi2Status.error)
             return False
         return True
 
@@ -188,18 +190,20 @@ class BlockSlave(Fmi2Slave):
         try:
             fn()
         except (ValueError, OSError) as exc:
-            self.log(f"{self.instance_name}: {exc}", Fmi2Status.error)
+            self.log(str(exc), Fmi2Status.error)
             raise
         return True
 
     # -- FMU state: registered variables are not enough, the Block holds NumPy state ------------
     def _get_fmu_state(self) -> dict[str, Any]:
-        return {"real": self._real.copy(), "params": dict(self._params), "block": copy.deepcopy(self._block)}
+        return {"real": self._real.copy(), "params": dict(self._params), "block": copy.deepcopy(self._block),
+                "initialising": self._initialising}
 
     def _set_fmu_state(self, state: dict[str, Any]) -> None:
         self._real[:] = state["real"]
         self._params = dict(state["params"])
         self._block = copy.deepcopy(state["block"])
+        self._initialising = state["initialising"]
 
     @staticmethod
     def _fmu_state_to_bytes(state: dict[str, Any]) -> bytes:

@@ -11,6 +11,7 @@ is how tests prove the FMUs add nothing but overhead, and how the benchmark meas
 
 from __future__ import annotations
 
+import atexit
 import ctypes
 import math
 import shutil
@@ -120,8 +121,11 @@ class BlockUnit(_Unit):
     def set_value(self, var: str, value: Any) -> None:
         if var in self._all_inputs:
             self._u[self._all_inputs.index(var)] = value
-        else:
+            return
+        try:
             self.block.set_parameter(var, value)
+        except ValueError as exc:
+            raise SimulationError(f"{self.name}: {exc}") from None
 
     def terminate(self) -> None:
         pass
@@ -132,6 +136,40 @@ class _StatusError(RuntimeError):
 
 
 _EXTRACTED: dict[tuple[str, float], str] = {}
+
+# fmpy's logger proxy formats the variadic FMI log call and hands it to ONE Python callback for the
+# whole process, so messages are routed by the instance name the FMU passes, not by which unit
+# registered last. Each FmuUnit subscribes its list under its instance name.
+_LOG_ROUTES: dict[str, list[str]] = {}
+_CALLBACKS: Any = None
+
+
+def _route_log(env: Any, instance: bytes, status: int, category: bytes, message: bytes) -> None:
+    name = instance.decode("utf-8", "replace") if instance else "?"
+    text = message.decode("utf-8", "replace") if message else ""
+    if status >= 2 and text and "Fatal py exception" not in text and text.strip() != "unknown error":
+        _LOG_ROUTES.setdefault(name, []).append(f"{name}: {' '.join(text.split())}")
+
+
+def _callbacks() -> Any:
+    global _CALLBACKS
+    if _CALLBACKS is None:
+        from fmpy.fmi2 import (
+            fmi2CallbackAllocateMemoryTYPE,
+            fmi2CallbackFreeMemoryTYPE,
+            fmi2CallbackFunctions,
+            fmi2CallbackLoggerTYPE,
+        )
+        from fmpy.logging import addLoggerProxy
+
+        cb = fmi2CallbackFunctions()
+        cb.logger = fmi2CallbackLoggerTYPE(_route_log)
+        libc = ctypes.CDLL(None)
+        cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(libc.calloc)
+        cb.freeMemory = fmi2CallbackFreeMemoryTYPE(libc.free)
+        addLoggerProxy(ctypes.byref(cb))
+        _CALLBACKS = cb
+    return _CALLBACKS
 
 
 def _extract(fmu: Path) -> str:
@@ -144,7 +182,9 @@ def _extract(fmu: Path) -> str:
     return _EXTRACTED[key]
 
 
+@atexit.register
 def cleanup_extracted() -> None:
+    """Remove the unpacked FMUs when the process ends (the libraries stay loaded until then)."""
     for d in _EXTRACTED.values():
         shutil.rmtree(d, ignore_errors=True)
     _EXTRACTED.clear()
@@ -155,16 +195,7 @@ class FmuUnit(_Unit):
 
     def __init__(self, inst: Instance, fmu_file: Path, in_names: list[str], log: list[str]) -> None:
         from fmpy import read_model_description
-        from fmpy.fmi2 import (
-            FMU2Slave,
-            fmi2CallbackAllocateMemoryTYPE,
-            fmi2CallbackFreeMemoryTYPE,
-            fmi2CallbackFunctions,
-            fmi2CallbackLoggerTYPE,
-            fmi2Real,
-            fmi2ValueReference,
-        )
-        from fmpy.logging import addLoggerProxy
+        from fmpy.fmi2 import FMU2Slave, fmi2Real, fmi2ValueReference
 
         self.name = inst.name
         self.log = log
@@ -175,16 +206,19 @@ class FmuUnit(_Unit):
         self.in_names = sorted(in_names, key=lambda n: self._vars[n].valueReference)
         self.fmu = FMU2Slave(guid=md.guid, unzipDirectory=_extract(fmu_file),
                              modelIdentifier=md.coSimulation.modelIdentifier, instanceName=inst.name)
-        self._callbacks = fmi2CallbackFunctions()
-        self._callbacks.logger = fmi2CallbackLoggerTYPE(self._on_log)
-        self._callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(ctypes.CDLL(None).calloc)
-        self._callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(ctypes.CDLL(None).free)
-        addLoggerProxy(ctypes.byref(self._callbacks))
-        self._call("instantiate", lambda: self.fmu.instantiate(callbacks=self._callbacks, loggingOn=True))
-        self._call("setupExperiment", lambda: self.fmu.setupExperiment(startTime=0.0))
-        self._call("enterInitializationMode", self.fmu.enterInitializationMode)
-        for k, v in inst.parameters.items():
-            self.set_value(k, v)
+        self._messages = _LOG_ROUTES.setdefault(inst.name, [])
+        self._messages.clear()
+        self._instantiated = False
+        self._call("instantiate", lambda: self.fmu.instantiate(callbacks=_callbacks(), loggingOn=True))
+        self._instantiated = True
+        try:
+            self._call("setupExperiment", lambda: self.fmu.setupExperiment(startTime=0.0))
+            self._call("enterInitializationMode", self.fmu.enterInitializationMode)
+            for k, v in inst.parameters.items():
+                self.set_value(k, v)
+        except SimulationError:
+            self.terminate()
+            raise
 
         out_vr = [self._vars[n].valueReference for n in self.out_names]
         in_vr = [self._vars[n].valueReference for n in self.in_names]
@@ -202,11 +236,6 @@ class FmuUnit(_Unit):
         self._step = self.fmu._functions["fmi2DoStep"]
         self._comp = self.fmu.component
 
-    def _on_log(self, env: Any, instance: bytes, status: int, category: bytes, message: bytes) -> None:
-        text = message.decode("utf-8", "replace") if message else ""
-        if status >= 2 and text:  # discard, error, fatal
-            self.log.append(f"{self.name}: {text}")
-
     def _call(self, what: str, fn: Any) -> Any:
         try:
             return fn()
@@ -214,10 +243,13 @@ class FmuUnit(_Unit):
             raise self.error(what, exc) from None
 
     def error(self, what: str, exc: Exception) -> SimulationError:
-        msgs = [m for m in self.log if m.startswith(f"{self.name}:") and "Fatal py exception" not in m
-                and "unknown error" not in m]
-        detail = msgs[-1].split(": ", 1)[1] if msgs else str(exc)
+        self.log.extend(m for m in self._messages if m not in self.log)
+        detail = self._messages[-1].split(": ", 1)[1] if self._messages else str(exc)
         return SimulationError(f"FMU '{self.name}' failed in {what}: {detail}")
+
+    def collect_log(self) -> None:
+        """Warnings and errors the FMU logged during a run that went on (e.g. discarded steps)."""
+        self.log.extend(m for m in self._messages if m not in self.log)
 
     def initialize(self, values: np.ndarray) -> np.ndarray:
         """Inputs set in initialisation mode, then exit it: the FMU starts from upstream values."""
@@ -248,6 +280,9 @@ class FmuUnit(_Unit):
         self._call(f"set {var}", lambda: setter(vr, [value]))
 
     def terminate(self) -> None:
+        if not getattr(self, "_instantiated", False):
+            return
+        self._instantiated = False
         try:
             self.fmu.terminate()
             # Free the instance but keep the shared library loaded: unloading pythonfmu's
@@ -283,6 +318,8 @@ def run(scenario: Scenario, mode: Mode = "fmu", progress: bool = True,
         return _loop(scenario, units, mode, progress, log)
     finally:
         for u in units:
+            if isinstance(u, FmuUnit):
+                u.collect_log()
             u.terminate()
 
 
@@ -309,10 +346,13 @@ def _loop(scenario: Scenario, units: list[_Unit], mode: str, progress: bool, log
     n_steps = round(scenario.duration / scenario.step)
     rec_every = scenario.record_every
     n_rec = n_steps // rec_every + 1
-    rec_slots, extra = [], []
+    source_of = {(di, dv): (si, sv) for si, sv, di, dv in scenario.connections}
+    rec_slots, rec_keys, extra = [], [], []
     for inst, var in scenario.outputs:
-        if (inst, var) in slot:
-            rec_slots.append(slot[(inst, var)])
+        key = source_of.get((inst, var), (inst, var))  # a connected input is its source's value
+        if key in slot:
+            rec_slots.append(slot[key])
+            rec_keys.append((inst, var))
         else:
             extra.append((inst, var))
     rec_slots_arr = np.array(rec_slots, dtype=int)
@@ -337,15 +377,28 @@ def _loop(scenario: Scenario, units: list[_Unit], mode: str, progress: bool, log
         for j, key in enumerate(extra):
             extra_rec[row, j] = held.get(key, np.nan)
 
-    record(0, 0.0)
     events = list(scenario.events)
     ev_i = 0
     by_name = {u.name: u for u in units}
+    h = scenario.step
+    eps = 1e-9 * h
+
+    def apply_events(t: float) -> None:
+        nonlocal ev_i
+        while ev_i < len(events) and events[ev_i][0] <= t + eps:
+            _, inst, var, value = events[ev_i]
+            by_name[inst].set_value(var, value)
+            held[(inst, var)] = float(value) if isinstance(value, int | float) else np.nan
+            ev_i += 1
+
+    apply_events(0.0)
+    record(0, 0.0)
     step_time = {u.name: 0.0 for u in units}
     steps = {u.name: 0 for u in units}
     mults = [i.step_multiple for i in scenario.instances]
-    h = scenario.step
-    eps = 1e-9 * h
+    # An FMU stepping every m master steps computes its outputs for t + m h at once; they are
+    # published when the master reaches t + m h, not earlier (no values from the future).
+    pending: dict[int, np.ndarray] = {}
 
     bar = None
     if progress:
@@ -356,21 +409,22 @@ def _loop(scenario: Scenario, units: list[_Unit], mode: str, progress: bool, log
     wall0 = perf()
     for k in range(n_steps):
         t = k * h
-        while ev_i < len(events) and events[ev_i][0] <= t + eps:
-            _, inst, var, value = events[ev_i]
-            by_name[inst].set_value(var, value)
-            held[(inst, var)] = float(value) if isinstance(value, int | float) else np.nan
-            ev_i += 1
+        apply_events(t)
         for j, u in enumerate(units):
             m = mults[j]
             if k % m:
+                if (k + 1) % m == 0:
+                    bus[out_slices[j]] = pending.pop(j)
                 continue
             t0 = perf()
             try:
                 if len(src_idx[j]):
                     u.set_inputs(bus[src_idx[j]])
                 u.do_step(t, h * m)
-                bus[out_slices[j]] = u.get_outputs()
+                if m == 1:
+                    bus[out_slices[j]] = u.get_outputs()
+                else:
+                    pending[j] = u.get_outputs().copy()
             except SimulationError:
                 raise
             except Exception as exc:
@@ -387,8 +441,7 @@ def _loop(scenario: Scenario, units: list[_Unit], mode: str, progress: bool, log
     if bar is not None:
         bar.close()
 
-    signals = {f"{i}.{v}": rec[:, j] for j, (i, v) in enumerate(
-        [key for key in scenario.outputs if key in slot])}
+    signals = {f"{i}.{v}": rec[:, j] for j, (i, v) in enumerate(rec_keys)}
     for j, (i, v) in enumerate(extra):
         signals[f"{i}.{v}"] = extra_rec[:, j]
     return RunResult(scenario, times, signals, wall, step_time, steps, mode, log)

@@ -94,5 +94,16 @@ def summary(result: RunResult, checks: list[CheckResult]) -> dict[str, Any]:
     }
 
 
+def _json_safe(x: Any) -> Any:
+    """JSON has no NaN: a check on missing data is written as null, not as invalid JSON."""
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    if isinstance(x, dict):
+        return {k: _json_safe(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [_json_safe(v) for v in x]
+    return x
+
+
 def write_summary(data: dict[str, Any], path: Path) -> None:
-    path.write_text(json.dumps(data, indent=2, default=float) + "\n")
+    path.write_text(json.dumps(_json_safe(data), indent=2, allow_nan=False) + "\n")

@@ -8,6 +8,7 @@ acceptance checks. Every mistake is reported as one line: ``file: field: what is
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -29,7 +30,7 @@ class ScenarioError(ValueError):
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 
 class FmuEntry(_Strict):
@@ -66,11 +67,18 @@ class Check(_Strict):
     def _bound(self) -> Check:
         if self.max is None and self.min is None:
             raise ValueError("a check needs 'max' or 'min'")
+        if self.max is not None and self.min is not None and self.min > self.max:
+            raise ValueError(f"min {self.min} is above max {self.max}")
+        if self.before is not None and self.before <= self.after:
+            raise ValueError(f"'before' ({self.before}) must be after 'after' ({self.after})")
         return self
 
 
+_IDENT = r"^[A-Za-z_][A-Za-z0-9_-]*$"
+
+
 class ScenarioModel(_Strict):
-    name: str
+    name: str = Field(pattern=_IDENT, description="also the results folder name")
     description: str = ""
     vessel: str
     duration: float = Field(gt=0)
@@ -140,12 +148,31 @@ def scenario_path(name_or_path: str | Path | None) -> Path:
     raise ScenarioError(f"scenario '{name_or_path}': no such file or shipped scenario (shipped: {known})")
 
 
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """YAML silently keeps the last of two equal keys; in a scenario that hides a mistake."""
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict:
+        seen: set[Any] = set()
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=deep)
+            if key in seen:
+                where = f"duplicate key '{key}' (line {key_node.start_mark.line + 1})"
+                raise yaml.constructor.ConstructorError(None, None, where, key_node.start_mark)
+            seen.add(key)
+        return super().construct_mapping(node, deep=deep)
+
+
 def load_scenario(name_or_path: str | Path | None = None) -> Scenario:
     path = scenario_path(name_or_path)
     try:
-        doc = yaml.safe_load(path.read_text())
+        doc = yaml.load(path.read_text(encoding="utf-8"), Loader=_UniqueKeyLoader)
     except yaml.YAMLError as exc:
-        raise ScenarioError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+        first = str(exc).replace("\n", " ").strip()
+        if isinstance(exc, yaml.constructor.ConstructorError) and exc.problem:
+            first = exc.problem
+        raise ScenarioError(f"{path}: not valid YAML ({first})") from None
+    except UnicodeDecodeError:
+        raise ScenarioError(f"{path}: not UTF-8 text") from None
     except OSError as exc:
         raise ScenarioError(f"{path}: cannot read ({exc.strerror})") from None
     if not isinstance(doc, dict):
@@ -196,6 +223,9 @@ def fmu_file_variables(fmu: Path) -> dict[str, VarInfo]:
     from fmpy import read_model_description
 
     md = read_model_description(str(fmu))
+    if md.fmiVersion != "2.0" or md.coSimulation is None:
+        raise ValueError(f"seafmu runs FMI 2.0 co-simulation FMUs; this is FMI {md.fmiVersion}"
+                         f"{'' if md.coSimulation else ' without co-simulation'}")
     units = {}
     out: dict[str, VarInfo] = {}
     for v in md.modelVariables:
@@ -205,6 +235,25 @@ def fmu_file_variables(fmu: Path) -> dict[str, VarInfo]:
         out[v.name] = VarInfo(v.name, v.causality, v.type.lower(), units[v.name], v.variability, mn, mx,
                               v.start)
     return out
+
+
+def _check_vessel_file(value: str, vessel: str, kind: str, path: Path, where: str) -> str:
+    """Resolve against the scenario's folder, load it, and demand the interface of the FMU."""
+    from components.vessel_spec import VesselFileError, load_vessel
+    from fmus.registry import BLOCKS
+
+    p = Path(value)
+    if not p.is_absolute():
+        p = (path.parent / p).resolve()
+    try:
+        other = load_vessel(p)
+    except VesselFileError as exc:
+        raise _fail(path, where, str(exc)) from None
+    a, b = BLOCKS[kind].interface(load_vessel(vessel)), BLOCKS[kind].interface(other)
+    if a.input_names() != b.input_names() or a.output_names() != b.output_names():
+        raise _fail(path, where, f"{p} has another interface than vessel '{vessel}' (thrusters, DOF and "
+                    "sensors must match)")
+    return str(p)
 
 
 def _convert(value: Any, info: VarInfo, path: Path, where: str) -> Any:
@@ -219,6 +268,12 @@ def _convert(value: Any, info: VarInfo, path: Path, where: str) -> Any:
     if info.type == "integer":
         if isinstance(value, bool) or not isinstance(value, int):
             raise _fail(path, where, f"expected a whole number, got {value!r}")
+        if not -(2**31) <= value < 2**31:
+            raise _fail(path, where, f"{value} does not fit an FMI Integer (32 bits)")
+        if info.min is not None and value < info.min:
+            raise _fail(path, where, f"{value} is below the minimum {info.min:g}")
+        if info.max is not None and value > info.max:
+            raise _fail(path, where, f"{value} is above the maximum {info.max:g}")
         return value
     try:
         x = to_si(value, info.unit)
@@ -234,18 +289,39 @@ def _convert(value: Any, info: VarInfo, path: Path, where: str) -> Any:
     return x
 
 
+def _check_link(src: VarInfo, dst: VarInfo, left: str, right: str, path: Path, where: str) -> None:
+    if src.type != "real" or dst.type != "real":
+        raise _fail(path, where,
+                    f"only Real variables can be connected: {left} is {src.type}, {right} is {dst.type}")
+    if src.unit and dst.unit and src.unit != dst.unit:
+        raise _fail(path, where, f"unit mismatch: {left} is in {src.unit}, {right} in {dst.unit}")
+
+
 def resolve(model: ScenarioModel, path: Path) -> Scenario:
     from components.vessel_spec import VesselFileError, bundled_vessels, load_vessel
+    from seafmu.build import VESSELS
 
     try:
         load_vessel(model.vessel)
     except VesselFileError as exc:
         raise _fail(path, "vessel", f"{exc} (bundled: {', '.join(bundled_vessels())})") from None
+    if model.vessel not in VESSELS:
+        raise _fail(path, "vessel", f"'{model.vessel}' has no FMUs (FMUs are built for "
+                    f"{', '.join(VESSELS)}); load another vessel file of the same interface with "
+                    "the plant parameter vessel_file")
 
-    entries = model.fmus or {k: FmuEntry(kind=k) for k in KINDS}
+    ratio = model.duration / model.step
+    if abs(ratio - round(ratio)) > 1e-6 * max(1.0, ratio):
+        raise _fail(path, "step",
+                    f"duration {model.duration} s is not a whole number of steps of {model.step} s")
+    if model.fmus is not None and not model.fmus:
+        raise _fail(path, "fmus", "lists no FMU (leave the field out for the vessel's four FMUs)")
+    entries = model.fmus if model.fmus is not None else {k: FmuEntry(kind=k) for k in KINDS}
     instances: list[Instance] = []
     for name, e in entries.items():
         where = f"fmus.{name}"
+        if not re.match(_IDENT, name):
+            raise _fail(path, where, "an FMU name must be a plain identifier (letters, digits, _ or -)")
         if e.kind is not None:
             variables = interface_variables(model.vessel, e.kind)
             fmu_file = None
@@ -256,7 +332,8 @@ def resolve(model: ScenarioModel, path: Path) -> Scenario:
             try:
                 variables = fmu_file_variables(fmu_file)
             except Exception as exc:  # fmpy raises many types for broken archives
-                raise _fail(path, f"{where}.fmu", f"not a readable FMU ({exc})") from None
+                first = " ".join(str(exc).split())[:200]
+                raise _fail(path, f"{where}.fmu", f"not a readable FMU ({first})") from None
         params = {}
         for pname, value in e.parameters.items():
             info = variables.get(pname)
@@ -265,6 +342,9 @@ def resolve(model: ScenarioModel, path: Path) -> Scenario:
             if info.causality not in ("parameter", "input"):
                 raise _fail(path, f"{where}.parameters.{pname}", f"is an {info.causality}; it cannot be set")
             params[pname] = _convert(value, info, path, f"{where}.parameters.{pname}")
+        if e.kind is not None and params.get("vessel_file"):
+            params["vessel_file"] = _check_vessel_file(params["vessel_file"], model.vessel, e.kind, path,
+                                                       f"{where}.parameters.vessel_file")
         instances.append(Instance(name, e.kind, fmu_file, e.step_multiple, params, variables))
     by_name = {i.name: i for i in instances}
 
@@ -295,7 +375,10 @@ def resolve(model: ScenarioModel, path: Path) -> Scenario:
                     raise _fail(path, "connect", f"input {inst.name}.{v.name} matches outputs of several "
                                 f"FMUs ({', '.join(src)}): connect it explicitly")
                 if src:
+                    sinfo = by_name[src[0]].variables[v.name]
+                    _check_link(sinfo, v, f"{src[0]}.{v.name}", f"{inst.name}.{v.name}", path, "connect")
                     connections[(inst.name, v.name)] = (src[0], v.name)
+    explicit: set[tuple[str, str]] = set()
     for k, text in enumerate(model.connections):
         where = f"connections[{k}]"
         if "->" not in text:
@@ -303,10 +386,10 @@ def resolve(model: ScenarioModel, path: Path) -> Scenario:
         left, right = (s.strip() for s in text.split("->", 1))
         si, sv, sinfo = lookup(left, where, ("output",))
         di, dv, dinfo = lookup(right, where, ("input",))
-        if sinfo.type != dinfo.type:
-            raise _fail(path, where, f"type mismatch: {left} is {sinfo.type}, {right} is {dinfo.type}")
-        if sinfo.unit and dinfo.unit and sinfo.unit != dinfo.unit:
-            raise _fail(path, where, f"unit mismatch: {left} is in {sinfo.unit}, {right} in {dinfo.unit}")
+        if (di, dv) in explicit:
+            raise _fail(path, where, f"{right} is already connected by an earlier line")
+        explicit.add((di, dv))
+        _check_link(sinfo, dinfo, left, right, path, where)
         connections[(di, dv)] = (si, sv)
 
     events = []
@@ -317,15 +400,14 @@ def resolve(model: ScenarioModel, path: Path) -> Scenario:
             raise _fail(path, where, f"{ev.set} is driven by a connection; an event cannot set it")
         if info.causality == "parameter" and info.variability != "tunable":
             raise _fail(path, where, f"{ev.set} is a fixed parameter; only tunable ones change during a run")
-        if ev.time > model.duration:
-            raise _fail(path, where, f"time {ev.time} is after the end of the run ({model.duration} s)")
+        if ev.time >= model.duration:
+            raise _fail(path, where, f"time {ev.time} is not before the end of the run ({model.duration} s)")
+        k_ev = ev.time / model.step
+        if abs(k_ev - round(k_ev)) > 1e-6:
+            raise _fail(path, where, f"time {ev.time} s is not on the step grid ({model.step} s)")
         events.append((ev.time, inst, var, _convert(ev.value, info, path, f"{where}.value")))
     events.sort(key=lambda e: e[0])
 
-    ratio = model.duration / model.step
-    if abs(ratio - round(ratio)) > 1e-6 * max(1.0, ratio):
-        raise _fail(path, "step",
-                    f"duration {model.duration} s is not a whole number of steps of {model.step} s")
     record_every = 1
     if model.record_interval is not None:
         r = model.record_interval / model.step
@@ -333,18 +415,25 @@ def resolve(model: ScenarioModel, path: Path) -> Scenario:
             raise _fail(path, "record_interval", f"{model.record_interval} s must be a whole multiple of "
                         f"the step {model.step} s")
         record_every = round(r)
+        if round(ratio) % record_every:
+            raise _fail(path, "record_interval", f"{model.record_interval} s does not divide the duration "
+                        f"{model.duration} s (the last sample would be lost)")
     for inst in instances:
-        if inst.step_multiple * model.step > model.duration:
-            raise _fail(path, f"fmus.{inst.name}.step_multiple", "the FMU step is longer than the run")
+        if round(ratio) % inst.step_multiple:
+            raise _fail(path, f"fmus.{inst.name}.step_multiple", f"{inst.step_multiple} steps of "
+                        f"{model.step} s do not divide the duration {model.duration} s")
+
+    def recordable(ref: str, where: str) -> tuple[str, str]:
+        inst, var, info = lookup(ref, where, ("output", "input", "parameter"))
+        if info.type != "real" and not (info.type == "integer" and info.causality == "parameter"):
+            raise _fail(path, where, f"'{ref}' is {info.type}; only Real signals can be recorded")
+        return inst, var
 
     if model.outputs is None:
         outputs = [(i.name, v.name) for i in instances for v in i.variables.values()
-                   if v.causality == "output" and v.type in ("real", "integer")]
+                   if v.causality == "output" and v.type == "real"]
     else:
-        outputs = []
-        for k, ref in enumerate(model.outputs):
-            inst, var, _ = lookup(ref, f"outputs[{k}]", ("output", "input", "parameter"))
-            outputs.append((inst, var))
+        outputs = [recordable(ref, f"outputs[{k}]") for k, ref in enumerate(model.outputs)]
     recorded = set(outputs)
     for _, inst, var, _ in events:  # setpoints and other event targets belong in the results
         if (inst, var) not in recorded:
@@ -355,7 +444,7 @@ def resolve(model: ScenarioModel, path: Path) -> Scenario:
             ref = getattr(c, attr)
             if ref is None:
                 continue
-            inst, var, _ = lookup(ref, f"checks[{k}].{attr}", ("output", "input", "parameter"))
+            inst, var = recordable(ref, f"checks[{k}].{attr}")
             if (inst, var) not in recorded:
                 outputs.append((inst, var))
                 recorded.add((inst, var))

@@ -48,6 +48,7 @@ def to_si(value: object, target_unit: str) -> float:
     if unit not in _UNITS:
         raise UnitError(f"unknown unit '{unit}' in {value!r} (known: {', '.join(sorted(_UNITS))})")
     si, factor = _UNITS[unit]
-    if target_unit and si != target_unit:
-        raise UnitError(f"unit '{unit}' in {value!r} does not fit this variable's unit '{target_unit}'")
+    if si != (target_unit or "1"):
+        shown = target_unit or "1"
+        raise UnitError(f"unit '{unit}' in {value!r} does not fit this variable's unit '{shown}'")
     return number * factor

@@ -123,11 +123,15 @@ def test_state_round_trip_every_kind_in_the_loop(built_fmus: dict, kind: str) ->
 
 def test_bad_parameter_gives_readable_fmi_error(built_fmus: dict) -> None:
     log: list[str] = []
+    # another FMU instantiated later must not steal the plant's log messages
+    other = FmuUnit(_instance("minerva2", "controller"), built_fmus[("minerva2", "controller")], [], log)
     with pytest.raises(SimulationError) as err:
         inst = _instance("minerva2", "plant", {"noise_scale": -1.0})
         FmuUnit(inst, built_fmus[("minerva2", "plant")], [], log).initialize(np.zeros(0))
     assert "exitInitializationMode" in str(err.value) and "noise_scale" in str(err.value)
-    assert "\n" not in str(err.value)
+    assert str(err.value).startswith("FMU 'plant' failed") and "\n" not in str(err.value)
+    assert any(m.startswith("plant: ") and "noise_scale" in m for m in log)
+    other.terminate()
 
 
 def test_bad_vessel_file_parameter(built_fmus: dict, tmp_path: Path) -> None:

@@ -29,6 +29,11 @@ BASE = {
 
 
 def _write(tmp_path: Path, doc: object) -> Path:
+    from components.vessel_spec import vessel_path
+
+    if isinstance(doc, dict) and doc.get("fmus", {}).get("plant", {}).get("parameters", {}).get(
+            "vessel_file") == "AMV":
+        doc["fmus"]["plant"]["parameters"]["vessel_file"] = str(vessel_path("amv_osf"))
     p = tmp_path / "scenario.yaml"
     p.write_text(doc if isinstance(doc, str) else yaml.safe_dump(doc, sort_keys=False))
     return p
@@ -72,7 +77,33 @@ CASES = [
     ("event on an output", {"events/0/set": "plant.north"}, "'plant.north' is an output"),
     ("event on a fixed parameter", {"events/0/set": "plant.seed", "events/0/value": 3},
      "plant.seed is a fixed parameter"),
-    ("event after the end", {"events/0/time": 11}, "events[0]: time 11.0 is after the end"),
+    ("event after the end", {"events/0/time": 11}, "events[0]: time 11.0 is not before the end"),
+    ("event at the end has no effect", {"events/0/time": 10}, "events[0]: time 10.0 is not before the end"),
+    ("event off the step grid", {"events/0/time": 5.01}, "events[0]: time 5.01 s is not on the step grid"),
+    ("empty fmus", {"fmus": {}}, "fmus: lists no FMU"),
+    ("FMU name not an identifier", {"fmus": {"p.x": {"kind": "plant"}}}, "fmus.p.x: an FMU name must be"),
+    ("scenario name not an identifier", {"name": "../escape"}, "name: String should match pattern"),
+    ("integer out of range", {"fmus/plant/parameters/seed": -1}, "fmus.plant.parameters.seed: -1 is below"),
+    ("integer wider than 32 bits", {"fmus/plant/parameters/seed": 4294967297},
+     "does not fit an FMI Integer (32 bits)"),
+    ("unit on a dimensionless variable", {"fmus/plant/parameters/noise_scale": "2 km"},
+     "unit 'km' in '2 km' does not fit this variable's unit '1'"),
+    ("infinite duration", {"duration": float("inf")}, "duration: Input should be a finite number"),
+    ("check window backwards", {"checks/0/after": 5, "checks/0/before": 2}, "'before' (2.0) must be after"),
+    ("check min above max", {"checks/0/min": 20}, "min 20.0 is above max 10.0"),
+    ("vessel without FMUs", {"vessel": "minerva2_published_damping"},
+     "vessel: 'minerva2_published_damping' has no FMUs"),
+    ("vessel_file missing", {"fmus/plant/parameters/vessel_file": "nowhere.yaml"},
+     "nowhere.yaml (bundled:"),
+    ("vessel_file of another interface", {"fmus/plant/parameters/vessel_file": "AMV"},
+     "has another interface than vessel 'minerva2'"),
+    ("duplicate connection target",
+     {"connections": ["plant.north -> controller.north_hat", "plant.east -> controller.north_hat"]},
+     "connections[1]: controller.north_hat is already connected"),
+    ("record interval does not divide the duration", {"duration": 10.5, "record_interval": 1.0},
+     "record_interval: 1.0 s does not divide the duration"),
+    ("step multiple does not divide the run", {"fmus/observer/step_multiple": 3},
+     "fmus.observer.step_multiple: 3 steps of 0.05 s do not divide"),
     ("connection without arrow", {"connections": ["plant.north observer.north_hat"]},
      "connections[0]: 'plant.north observer.north_hat' must read"),
     ("connection unit mismatch", {"connections": ["plant.north -> controller.yaw_hat"]},
@@ -119,6 +150,16 @@ def test_units_convert_to_si(tmp_path: Path) -> None:
     sc = load_scenario(_write(tmp_path, doc))
     assert sc.events[0][3] == pytest.approx(3.141592653589793 / 2)
     assert sc.instance("plant").parameters["current_speed"] == pytest.approx(0.5 * 1852 / 3600)
+
+
+def test_duplicate_keys_and_bad_encoding(tmp_path: Path) -> None:
+    text = yaml.safe_dump(BASE, sort_keys=False) + "duration: 20\n"
+    with pytest.raises(ScenarioError, match="duplicate key 'duration'"):
+        load_scenario(_write(tmp_path, text))
+    p = tmp_path / "latin1.yaml"
+    p.write_bytes("name: t\nvessel: minerva2\n# \xe9\n".encode("latin-1"))
+    with pytest.raises(ScenarioError, match="not UTF-8 text"):
+        load_scenario(p)
 
 
 def test_not_yaml_and_not_a_mapping(tmp_path: Path) -> None:
