@@ -1,22 +1,38 @@
 """Thrust allocation: generalised force tau -> thruster thrusts T -> shaft speed commands n.
 
-Two methods, chosen by the vessel:
-- over-actuated vessels (Minerva 2, 6 DOF, 7 thrusters; any vessel that is not the two-screw case):
-  weighted pseudo-inverse T = W^-1 B^T (B W^-1 B^T)^-1 tau (minimum weighted thrust energy, the
-  thesis's method), then per-thruster thrust limits;
-- a 3-DOF vessel with exactly two thrusters (AMV OSF, two fixed screws): solve the surge and yaw
-  rows exactly (2 x 2), then saturate with heading priority: the yaw part is kept, the surge part
-  is scaled down until both screws are inside their limits. Sway is not controllable and ignored.
+Methods (allocator parameter ``method``; 0 is the default and the behaviour before the QP existed):
 
-After the limits, ``tau_alloc`` = B T (what the thrusters are asked to deliver) and
-``alloc_error`` = ||B T - tau|| (thesis: report the allocation error after saturation). For the two
-screws this includes the sway force k_y (n1 - n2) that comes with every yaw moment, so it is not
-zero even when nothing saturates: it is the honest distance between demanded and delivered force.
+- 0, pseudo-inverse + clip. Over-actuated vessels (Minerva 2; any vessel that is not the two-screw
+  case): weighted pseudo-inverse T = W^-1 B^T (B W^-1 B^T)^-1 tau (minimum weighted thrust energy,
+  the thesis's method), then per-thruster limits. A 3-DOF vessel with exactly two thrusters (AMV
+  OSF, two fixed screws): solve the surge and yaw rows exactly (2 x 2), then saturate with heading
+  priority (the yaw part is kept, the surge part scaled down). Sway is not controllable there.
+- 1, constrained QP (``QPAllocator``, solver DAQP): minimum weighted energy subject to asymmetric
+  thrust limits, thrust-rate limits and B T = tau + s with an exactly penalised slack s whose
+  per-DOF priorities decide what is given up first when tau is out of reach (heading before surge
+  by default). Equal to method 0 whenever no limit is active.
+- 2, weighted camera-jet (thesis): method 0 with the weight of each camera thruster (``camera_i``,
+  by default the fore horizontal thrusters 1 and 2 of Minerva 2, whose jets hit the cameras) raised
+  to S = ``camera_weight`` (thesis 1e8) only when its thrust would be negative; one re-solve.
+- 3, QP with minimum negative camera thrust: method 1 plus a variable z_k >= -T_k, z_k >= 0 per
+  camera thruster with an exact penalty ``camera_penalty`` on z: the thesis's indicator (sum of
+  negative front thrust) is minimised above the allocation error (default), inside the limits.
+
+The thesis's benchmark variant "drop thruster 1 and solve 6 x 6" is ``enable_1 = 0`` with any method.
+
+Failures: ``enable_i = 0`` removes thruster i from the allocation and ``stuck_n_i`` tells the
+allocator the speed it is stuck at (0 = stopped); its thrust is counted as a known force. The
+allocator has no speed input, so it does not detect failures itself: fault detection (a scenario
+event today, a diagnosis block later) sets both at the time of the failure. See docs/allocation.md.
+
+After the limits, ``tau_alloc`` = B T (what the thrusters are asked to deliver, with the stuck
+thrust) and ``alloc_error`` = ||B T - tau|| (thesis: the allocation error after saturation). For
+the two screws this includes the sway force k_y (n1 - n2) that comes with every yaw moment, so it
+is not zero even when nothing saturates: it is the honest distance between demanded and delivered.
 
 The thrust law, its inverse and the limits come from ``components.thrusters`` (one definition of
 the thruster shared with the plant).
 """
-
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -25,7 +41,7 @@ from typing import Any
 import numpy as np
 
 from components.block import Block, Interface, Signal
-from components.thrusters import max_thrust, thrust_to_speed, thruster_matrix
+from components.thrusters import max_thrust, speed_to_thrust, thrust_to_speed, thruster_matrix
 from components.vessel_spec import VesselSpec
 
 FORCE_UNIT = {"X": "N", "Y": "N", "Z": "N", "K": "N.m", "M": "N.m", "N": "N.m"}
@@ -145,11 +161,242 @@ def _two_screw(vessel: VesselSpec) -> bool:
     return vessel.dof == 3 and vessel.thrusters.count == 2
 
 
+# --- constrained QP allocation ------------------------------------------------------------------
+
+QP_INF = 1e30  # DAQP's infinity for bounds
+_SLACK_EPS = 1e-9  # quadratic regulariser on the slack and camera variables (DAQP needs H > 0)
+_K_LINEAR = 1e3  # exact (linear) part of the penalties, per unit of relative error
+_K_QUAD = 1e6  # quadratic part: dominant beyond an error of ~0.05 % of C_j (0.2 N for Minerva 2)
+
+
+def error_scale(B: np.ndarray, thrust_scale: float) -> np.ndarray:
+    """Thrust-equivalent scale of each DOF's allocation error: U for a force, U L for a moment.
+
+    L is the thrusters' mean moment arm (|moment| / |force| of each column of B): 0.95 m for
+    Minerva 2, 0.21 m for the AMV's screws. So 1 N.m of yaw weighs like 1/L N of force, what
+    it costs in thrust, and a priority means the same on a ROV and on a small surface vessel.
+    Rows: X, Y, Z, K, M, N (6 DOF) or X, Y, N (3 DOF).
+    """
+    B = np.asarray(B, dtype=float)
+    d = B.shape[0]
+    moment = np.zeros(d, dtype=bool)
+    moment[3:] = d == 6
+    moment[2] = d == 3
+    f = np.linalg.norm(B[~moment], axis=0)
+    mo = np.linalg.norm(B[moment], axis=0)
+    arm = float(np.mean(mo[f > 1e-12] / f[f > 1e-12])) if np.any(f > 1e-12) else 1.0
+    return np.where(moment, thrust_scale * max(arm, 1e-3), thrust_scale)
+
+
+class QPAllocator:
+    """Constrained thrust allocation as one QP, set up once and warm-started at every call.
+
+    Variables x = [T (m), s+ (d), s- (d), z (c)], s = s+ - s- the allocation error, z the negative
+    thrust of the c camera thrusters; e_j = s_j / C_j is the error in thrust-equivalent units
+    (``error_scale``: C_j = U for a force, U L for a moment, U the largest thrust)::
+
+        min  sum_i (w_i / w_max) (T_i / U)^2 + sum_j p_j (K1 |e_j| + K2 e_j^2) + q K1 sum_k z_k / U
+        s.t. B T - s+ + s- = tau,   lo <= T <= hi,   T_k + z_k >= 0,   s+, s-, z >= 0
+
+    Why this form:
+    - the linear part of the penalties is exact: s and z are zero whenever the constraints allow
+      it, because the energy's multipliers (about 2/U per N) are far below K1 p_j / C_j. So an
+      unsaturated demand gets exactly the weighted pseudo-inverse;
+    - beyond a tiny error the quadratic part dominates, so a saturated demand spreads the error
+      over the DOFs in inverse proportion to p_j (heading before surge with p_N > p_X) instead
+      of dropping whole DOFs one after the other: a purely linear (lexicographic) penalty made the
+      closed loop hunt between DOFs in saturation (Minerva 2 starting up in a 0.45 m/s current);
+    - thrust-equivalent errors make p_j mean the same for a ROV and a small surface vessel (1 N.m
+      of yaw is a lot for the AMV's 0.21 m screw arm, little for Minerva 2);
+    - the camera penalty is linear only: q compares 1 N of negative camera thrust with 1 N of
+      small allocation error at priority 1; q = 1e6 (default) wins over any allocation error up
+      to about 50 times the DOF's scale, q < 1 lets tau win (the cameras get the jet).
+    Only the bounds (lo, hi, tau) change per call: the matrices are built once, DAQP's workspace is
+    reused, and its active set from the last call is the warm start (typically 1-2 iterations).
+    """
+
+    def __init__(
+        self,
+        B: np.ndarray,
+        weights: Sequence[float] | np.ndarray | None = None,
+        priorities: Sequence[float] | np.ndarray | None = None,
+        camera: Sequence[int] = (),
+        camera_penalty: float = 0.0,
+        thrust_scale: float = 1.0,
+        tau_scale: Sequence[float] | np.ndarray | None = None,
+    ) -> None:
+        try:
+            import daqp  # imported here: only the QP methods need it
+        except ImportError:
+            raise ValueError("allocator: the QP methods need the solver DAQP (pip install daqp)") from None
+        self._daqp = daqp
+        B = np.asarray(B, dtype=float)
+        d, m = B.shape
+        c = len(camera)
+        w = np.ones(m) if weights is None else np.asarray(weights, dtype=float)
+        p = np.ones(d) if priorities is None else np.asarray(priorities, dtype=float)
+        C = np.full(d, thrust_scale) if tau_scale is None else np.asarray(tau_scale, dtype=float)
+        if w.shape != (m,) or not np.all(np.isfinite(w)) or np.any(w <= 0):
+            raise ValueError(f"weights must be {m} positive finite numbers, got {w.tolist()}")
+        if p.shape != (d,) or not np.all(np.isfinite(p)) or np.any(p < 0):
+            raise ValueError(f"priorities must be {d} finite numbers >= 0, got {p.tolist()}")
+        if C.shape != (d,) or not np.all(np.isfinite(C)) or np.any(C <= 0):
+            raise ValueError(f"tau_scale must be {d} positive finite numbers, got {C.tolist()}")
+        U = float(thrust_scale)
+        self.m, self.d, self.c = m, d, c
+        n = m + 2 * d + c
+        self.n = n
+        h = np.full(n, 2.0 * _SLACK_EPS)
+        h[:m] = 2.0 * w / (w.max() * U**2)
+        quad_s = 2.0 * p * _K_QUAD / C**2
+        h[m : m + d] += quad_s
+        h[m + d : m + 2 * d] += quad_s
+        H = np.diag(h)
+        f = np.zeros(n)
+        f[m : m + d] = p * _K_LINEAR / C
+        f[m + d : m + 2 * d] = p * _K_LINEAR / C
+        f[m + 2 * d :] = camera_penalty * _K_LINEAR / U
+        A = np.zeros((d + c, n))
+        A[:d, :m] = B
+        A[:d, m : m + d] = -np.eye(d)
+        A[:d, m + d : m + 2 * d] = np.eye(d)
+        for k, i in enumerate(camera):
+            A[d + k, i] = 1.0
+            A[d + k, m + 2 * d + k] = 1.0
+        bu = np.full(n + d + c, QP_INF)
+        bl = np.zeros(n + d + c)
+        bl[n + d :] = 0.0  # T_k + z_k >= 0
+        sense = np.zeros(n + d + c, dtype=np.int32)
+        sense[n : n + d] = 5  # equality rows
+        self._H, self._f, self._A, self._bu, self._bl, self._sense = H, f, A, bu, bl, sense
+        self._model: Any = None
+        self._lam: np.ndarray | None = None  # last dual solution: the warm start after a copy
+        self.iterations = 0
+
+    def solve(self, tau: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, int]:
+        """Thrusts within [lo, hi] for ``tau`` and DAQP's exit flag (1 = optimal; < 0 = failed)."""
+        m, n = self.m, self.n
+        bu, bl = self._bu, self._bl
+        bu[:m] = hi
+        bl[:m] = lo
+        bu[n : n + self.d] = tau
+        bl[n : n + self.d] = tau
+        if self._model is None:
+            self._setup()
+        else:
+            self._model.update(bupper=bu, blower=bl)
+        x, _, flag, info = self._model.solve()
+        self._lam = info["lam"]
+        self.iterations = int(info["iterations"])
+        return np.minimum(np.maximum(x[:m], lo), hi), int(flag)
+
+    def cold_start(self) -> None:
+        """Forget the active set: the next call is set up from scratch (tests, benchmarks)."""
+        self._model = None
+        self._lam = None
+
+    def _setup(self) -> None:
+        self._model = self._daqp.Model()
+        flag, _ = self._model.setup(self._H, self._f, self._A, self._bu, self._bl, self._sense,
+                                    dual_start=self._lam)
+        if flag < 0:
+            raise ValueError(f"allocator: QP set-up failed (DAQP flag {flag})")
+
+    def __getstate__(self) -> dict[str, Any]:
+        """Copy/pickle without DAQP's C workspace (not copyable); the copy is set up again from the
+        last dual solution. The original is re-set up the same way, so a saved and restored FMU
+        state continues bit-identically with the run that was never interrupted."""
+        self._model = None
+        state = dict(self.__dict__)
+        state["_daqp"] = None
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        import daqp
+
+        self.__dict__.update(state)
+        self._daqp = daqp
+
+
+def qp_allocation(
+    B: np.ndarray,
+    tau: Sequence[float] | np.ndarray,
+    T_min: np.ndarray,
+    T_max: np.ndarray,
+    weights: Sequence[float] | np.ndarray | None = None,
+    priorities: Sequence[float] | np.ndarray | None = None,
+    camera: Sequence[int] = (),
+    camera_penalty: float = 0.0,
+) -> np.ndarray:
+    """One cold QP solve (see ``QPAllocator``): thrusts in [T_min, T_max] for ``tau``."""
+    T_min, T_max = np.asarray(T_min, dtype=float), np.asarray(T_max, dtype=float)
+    scale = float(max(np.abs(T_min).max(), np.abs(T_max).max()))
+    qp = QPAllocator(B, weights, priorities, camera, camera_penalty, thrust_scale=scale,
+                     tau_scale=error_scale(B, scale))
+    T, flag = qp.solve(np.asarray(tau, dtype=float), T_min, T_max)
+    if flag < 0:
+        raise ValueError(f"QP allocation failed (DAQP flag {flag})")
+    return T
+
+
+def camera_weighted_allocation(
+    B: np.ndarray,
+    tau: Sequence[float] | np.ndarray,
+    camera: Sequence[int],
+    S: float = 1e8,
+    weights: Sequence[float] | np.ndarray | None = None,
+) -> np.ndarray:
+    """Thesis: pseudo-inverse, then the weight of the camera thrusters that came out negative is
+    raised to S and the pseudo-inverse solved again, until no other camera thruster turns
+    negative (no limits; the block's method 2 adds them)."""
+    B = np.asarray(B, dtype=float)
+    tau = np.asarray(tau, dtype=float)
+    w = np.ones(B.shape[1]) if weights is None else np.asarray(weights, dtype=float).copy()
+    T = allocation_matrix(B, w) @ tau
+    neg = [i for i in camera if T[i] < 0.0 and w[i] != S]
+    while neg:
+        w[neg] = S
+        T = allocation_matrix(B, w) @ tau
+        neg = [i for i in camera if T[i] < 0.0 and w[i] != S]
+    return T
+
+
+def negative_front_thrust(T: np.ndarray, camera: Sequence[int]) -> float:
+    """Thesis's performance indicator: the sum of the camera thrusters' negative thrust (>= 0)."""
+    Tl = T.tolist()
+    return float(sum(-Tl[i] for i in camera if Tl[i] < 0.0))
+
+
+def default_camera_thrusters(vessel: VesselSpec) -> list[int]:
+    """0-based thrusters whose reverse jet hits the cameras: horizontal (|d_z| < 0.5) and forward
+    of the origin (x > 0), on a vessel with more than two thrusters (Minerva 2: thrusters 1, 2)."""
+    th = vessel.thrusters
+    if th.count <= 2:
+        return []
+    return [i for i in range(th.count) if th.positions[i][0] > 0.0 and abs(th.directions[i][2]) < 0.5]
+
+
 # --- the block ----------------------------------------------------------------------------------
+
+METHODS = ("pseudo-inverse + clip", "QP", "weighted camera-jet", "QP, min negative camera thrust")
+_SAT_TOL = 1e-6  # N: a thrust this close to a bound counts as saturated
+
+
+def _priority_defaults(vessel: VesselSpec) -> dict[str, float]:
+    """Moments first (10: heading, and roll/pitch, which a lost moment would tip), forces 1.
+
+    Minerva 2's vertical thrusters make sway and roll together: with roll priority 1 the saturated
+    move of scenario minerva2_thruster_failure rolls 2.8 deg (0.6 deg with 10); 100 made a start in
+    a strong current drift away (docs/allocation.md). The two screws cannot make sway: 0 there.
+    """
+    out = {t: (10.0 if t in ("K", "M", "N") else 1.0) for t in vessel.tau_names}
+    if _two_screw(vessel):
+        out["Y"] = 0.0
+    return out
 
 
 class AllocatorBlock(Block):
-    """tau -> thruster speed commands, with thrust limits and the allocation error."""
+    """tau -> thruster speed commands, with thrust and rate limits, failures and the allocation error."""
 
     kind = "allocator"
 
@@ -159,13 +406,22 @@ class AllocatorBlock(Block):
         m = th.count
         inputs = [Signal(f"tau_{t}", FORCE_UNIT[t], f"demanded generalised force {t} (body)")
                   for t in vessel.tau_names]
-        outputs = [Signal(f"n_cmd_{i + 1}", "1/s", f"shaft speed command, thruster {th.names[i]} (rev/s)")
+        outputs = [Signal(f"n_cmd_{i + 1}", "rev/s", f"shaft speed command, thruster {th.names[i]}")
                    for i in range(m)]
         outputs += [Signal(f"thrust_cmd_{i + 1}", "N", f"thrust command, thruster {th.names[i]}")
                     for i in range(m)]
         outputs += [Signal(f"tau_alloc_{t}", FORCE_UNIT[t], f"allocated generalised force {t} = B T")
                     for t in vessel.tau_names]
         outputs.append(Signal("alloc_error", "", "||B T - tau|| after thrust limits (N and N.m mixed)"))
+        # Added with the QP allocator (appended: the earlier outputs keep their positions).
+        outputs += [Signal(f"sat_{i + 1}", "", f"1 = thruster {th.names[i]} at a thrust or rate limit "
+                           "(clipped, or at a bound of the QP), 0 = inside")
+                    for i in range(m)]
+        outputs.append(Signal("front_negative_thrust", "N", "thesis indicator: sum of the negative thrust "
+                              "of the camera thrusters (camera_i = 1), >= 0"))
+        outputs.append(Signal("thrust_energy", "", "sum of T_i^2 (N^2): the thesis's energy measure"))
+        outputs.append(Signal("qp_iterations", "", "active-set iterations of the QP this step (0 for "
+                              "methods 0 and 2; -1 = the QP failed and pseudo-inverse + clip was used)"))
         params = []
         for i in range(m):
             params.append(Signal(f"w_{i + 1}", "", f"pseudo-inverse weight of thruster {th.names[i]} "
@@ -178,8 +434,36 @@ class AllocatorBlock(Block):
                                  "0 = off)", min=0.0, start=0.0, tunable=True))
         for i in range(m):
             params.append(Signal(f"enable_{i + 1}", "", f"1 = thruster {th.names[i]} in use, 0 = dropped "
-                                 "(column removed, thrust 0)", min=0, max=1, start=1, type="integer",
+                                 "or failed (thrust counted as that of stuck_n; command 0)", min=0, max=1,
+                                 start=1, type="integer", tunable=True))
+        # Added with the QP allocator.
+        params.append(Signal("method", "", "0 = pseudo-inverse + clip (two screws: heading priority), "
+                             "1 = constrained QP, 2 = weighted camera-jet (thesis S on camera thrusters "
+                             "going negative), 3 = QP minimising negative camera thrust",
+                             min=0, max=len(METHODS) - 1, start=0, type="integer", tunable=True))
+        camera = default_camera_thrusters(vessel)
+        for i in range(m):
+            params.append(Signal(f"camera_{i + 1}", "", f"1 = thruster {th.names[i]}'s reverse jet hits "
+                                 "the cameras (methods 2 and 3 keep it out of negative thrust)", min=0,
+                                 max=1, start=int(i in camera), type="integer", tunable=True))
+        params.append(Signal("camera_weight", "", "method 2: weight S of a camera thruster whose thrust "
+                             "would be negative (thesis 1e8)", min=0.0, start=1e8, tunable=True))
+        params.append(Signal("camera_penalty", "", "method 3: cost of 1 N of negative camera thrust "
+                             "relative to 1 N of allocation error at priority 1 (1e6: protection wins; "
+                             "< 1: tau wins)", min=0.0, start=1e6, tunable=True))
+        for t, p in _priority_defaults(vessel).items():
+            params.append(Signal(f"priority_{t}", "", f"QP: cost per {FORCE_UNIT[t]} of allocation error "
+                                 f"in {t}; the smallest is given up first when tau is out of reach",
+                                 min=0.0, start=p, tunable=True))
+        for i in range(m):
+            params.append(Signal(f"thrust_rate_max_{i + 1}", "N/s", f"largest thrust change per second "
+                                 f"of thruster {th.names[i]} (0 = no limit)", min=0.0, start=0.0,
                                  tunable=True))
+        for i in range(m):
+            n_max = float(th.n_max[i])
+            params.append(Signal(f"stuck_n_{i + 1}", "rev/s", f"shaft speed of thruster {th.names[i]} "
+                                 "while enable = 0 (0 = stopped; else the speed it is stuck at): its "
+                                 "thrust is a known force", min=-n_max, max=n_max, start=0.0, tunable=True))
         return Interface(inputs=inputs, outputs=outputs, parameters=params)
 
     def __init__(self, vessel: VesselSpec, params: dict[str, Any]) -> None:
@@ -189,10 +473,15 @@ class AllocatorBlock(Block):
         self._names = self.interface(vessel).input_names()
         self.B = thruster_matrix(th, vessel.dof)
         self.T_min, self.T_max = max_thrust(th)
+        self._U = float(max(np.abs(self.T_min).max(), self.T_max.max()))
+        self._C = error_scale(self.B, self._U)  # QP: thrust-equivalent scale of each DOF's error
         self._two_screw = _two_screw(vessel)
         self._rows2 = [0, 2]  # surge and yaw rows of the 3-DOF B
         self._cache: dict[tuple, np.ndarray] = {}
-        self._y = np.zeros(2 * self._m + vessel.dof + 1)
+        self._qps: dict[tuple, QPAllocator] = {}
+        m, d = self._m, vessel.dof
+        self._y = np.zeros(3 * m + d + 4)
+        self._T_prev = np.zeros(m)
         for name, value in self.params.items():
             self._check(name, value)
         self._apply_params()
@@ -203,12 +492,24 @@ class AllocatorBlock(Block):
             v = float(value)
         except (TypeError, ValueError):
             raise ValueError(f"allocator: parameter '{name}' must be a number, got {value!r}") from None
-        if name.startswith("w_") and not (np.isfinite(v) and v > 0.0):
+        if not np.isfinite(v):
+            raise ValueError(f"allocator: parameter '{name}' must be finite, got {value!r}")
+        if name.startswith("w_") and not v > 0.0:
             raise ValueError(f"allocator: parameter '{name}' must be a positive finite weight, got {value!r}")
-        if name.startswith("reverse_weight_") and not (np.isfinite(v) and v >= 0.0):
-            raise ValueError(f"allocator: parameter '{name}' must be >= 0 (0 = off), got {value!r}")
-        if name.startswith("enable_") and v not in (0.0, 1.0):
+        if name.startswith(("reverse_weight_", "priority_", "thrust_rate_max_", "camera_penalty",
+                            "camera_weight")) and v < 0.0:
+            raise ValueError(f"allocator: parameter '{name}' must be >= 0, got {value!r}")
+        binary = name.startswith("enable_") or (name.startswith("camera_") and name[7:].isdigit())
+        if binary and v not in (0.0, 1.0):
             raise ValueError(f"allocator: parameter '{name}' must be 0 or 1, got {value!r}")
+        if name == "method" and v not in range(len(METHODS)):
+            raise ValueError(f"allocator: parameter 'method' must be one of 0..{len(METHODS) - 1} "
+                             f"({', '.join(METHODS)}), got {value!r}")
+        if name.startswith("stuck_n_"):
+            n_max = float(self.vessel.thrusters.n_max[int(name.rsplit("_", 1)[1]) - 1])
+            if abs(v) > n_max:
+                raise ValueError(f"allocator: parameter '{name}' must be within +-{n_max:g} rev/s, "
+                                 f"got {value!r}")
 
     def set_parameter(self, name: str, value: Any) -> None:
         self._check(name, value)
@@ -216,12 +517,28 @@ class AllocatorBlock(Block):
         self._apply_params()
 
     def _apply_params(self) -> None:
-        m, p = self._m, self.params
+        m, p, th = self._m, self.params, self.vessel.thrusters
+        self._method = int(float(p["method"]))
         self._w = np.array([float(p[f"w_{i + 1}"]) for i in range(m)])
-        self._rw = np.array([float(p[f"reverse_weight_{i + 1}"]) for i in range(m)])
         self._enabled = tuple(int(float(p[f"enable_{i + 1}"])) == 1 for i in range(m))
-        self._use_priority = self._two_screw and all(self._enabled)
+        self._camera = [i for i in range(m) if int(float(p[f"camera_{i + 1}"])) == 1]
+        rw = np.array([float(p[f"reverse_weight_{i + 1}"]) for i in range(m)])
+        if self._method == 2:  # thesis S on the camera thrusters (a larger reverse_weight still wins)
+            for i in self._camera:
+                rw[i] = max(rw[i], float(p["camera_weight"]))
+        self._rw = rw
+        self._rate = np.array([float(p[f"thrust_rate_max_{i + 1}"]) for i in range(m)])
+        self._has_rate = bool(np.any(self._rate > 0.0))
+        off = np.array([not e for e in self._enabled])
+        stuck = np.array([float(p[f"stuck_n_{i + 1}"]) for i in range(m)])
+        self._off = off
+        self._any_off = bool(off.any())
+        self._T_fixed = np.where(off, speed_to_thrust(th, stuck), 0.0)
+        self._tau_fixed = self.B @ self._T_fixed
+        self._priority = np.array([float(p[f"priority_{t}"]) for t in self.vessel.tau_names])
+        self._use_priority = self._two_screw and not self._any_off and self._method in (0, 2)
         self._P = self._matrix(self._w)
+        self._qp = self._qp_for() if self._method in (1, 3) else None
 
     def _matrix(self, w: np.ndarray) -> np.ndarray:
         """Full-size allocation matrix (zero rows for dropped thrusters), cached per weight set."""
@@ -235,17 +552,76 @@ class AllocatorBlock(Block):
             self._cache[key] = P
         return P
 
+    def _qp_for(self) -> QPAllocator:
+        """The QP of the current method and weights, built once per set (failures only move bounds)."""
+        camera = tuple(self._camera) if self._method == 3 else ()
+        penalty = float(self.params["camera_penalty"]) if camera else 0.0
+        key = (tuple(self._w.tolist()), tuple(self._priority.tolist()), camera, penalty)
+        qp = self._qps.get(key)
+        if qp is None:
+            qp = QPAllocator(self.B, self._w, self._priority, camera, penalty, thrust_scale=self._U,
+                             tau_scale=self._C)
+            self._qps[key] = qp
+        return qp
+
     # -- numerics ------------------------------------------------------------------------------
-    def thrusts(self, tau: np.ndarray) -> np.ndarray:
-        """Thrust commands within limits for ``tau`` (before conversion to speed)."""
+    def box(self, h: float | None) -> tuple[np.ndarray, np.ndarray]:
+        """Thrust bounds this step: limits, rate limits around the last command (not without a
+        step size h), a failed thruster fixed at its known thrust."""
+        lo, hi = self.T_min, self.T_max
+        if self._has_rate and h is not None:
+            r = np.where(self._rate > 0.0, self._rate * h, np.inf)
+            lo = np.maximum(lo, self._T_prev - r)
+            hi = np.minimum(hi, self._T_prev + r)
+        if self._any_off:
+            lo = np.where(self._off, self._T_fixed, lo)
+            hi = np.where(self._off, self._T_fixed, hi)
+        return lo, hi
+
+    def allocate(self, tau: np.ndarray, h: float | None = None) -> tuple[np.ndarray, np.ndarray, int]:
+        """Thrusts within the bounds for ``tau``, saturation flags, QP iterations (-1 = QP failed)."""
+        lo, hi = self.box(h)
+        if self._qp is not None:
+            T, flag = self._qp.solve(tau, lo, hi)
+            if flag >= 0:
+                sat = ((T <= lo + _SAT_TOL) | (T >= hi - _SAT_TOL)) & ~self._off
+                return T, sat, self._qp.iterations
+            self._qp.cold_start()  # never keep a failed active set
+            T, sat = self._pseudo_inverse(tau, lo, hi)
+            return T, sat, -1
+        T, sat = self._pseudo_inverse(tau, lo, hi)
+        return T, sat, 0
+
+    def _pseudo_inverse(
+        self, tau: np.ndarray, lo: np.ndarray, hi: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Methods 0 and 2 (and the fallback of a failed QP): pseudo-inverse, then clip into the box."""
         if self._use_priority:
-            return priority_allocation(self.B[self._rows2], tau[self._rows2], self.T_min, self.T_max)
+            T = priority_allocation(self.B[self._rows2], tau[self._rows2], self.T_min, self.T_max)
+            Tc = np.minimum(np.maximum(T, lo), hi)
+            sat = (Tc <= lo + _SAT_TOL) | (Tc >= hi - _SAT_TOL)
+            return Tc, sat
+        if self._any_off:
+            tau = tau - self._tau_fixed
         T = self._P @ tau
         raise_w = (T < 0.0) & (self._rw > 0.0)
-        if raise_w.any():
-            # Thesis variant: raise the weight only for thrusters that would go into reverse.
+        while raise_w.any():
+            # Thesis variant: raise the weight only for thrusters that would go into reverse; again
+            # if that turns another one negative (at most once per thruster: the set only grows).
             T = self._matrix(np.where(raise_w, self._rw, self._w)) @ tau
-        return np.minimum(np.maximum(T, self.T_min), self.T_max)
+            more = (T < 0.0) & (self._rw > 0.0) & ~raise_w
+            if not more.any():
+                break
+            raise_w = raise_w | more
+        if self._any_off:
+            T = T + self._T_fixed
+        Tc = np.minimum(np.maximum(T, lo), hi)
+        sat = Tc != T  # clipped (a failed thruster's T is its fixed value: never clipped)
+        return Tc, sat
+
+    def thrusts(self, tau: np.ndarray) -> np.ndarray:
+        """Thrust commands within limits for ``tau`` (before conversion to speed)."""
+        return self.allocate(np.asarray(tau, dtype=float))[0]
 
     def output(self) -> np.ndarray:
         return self._y.copy()
@@ -257,13 +633,21 @@ class AllocatorBlock(Block):
         if not np.isfinite(tau).all():
             bad = [n for n, v in zip(self._names, tau.tolist(), strict=True) if not np.isfinite(v)]
             raise ValueError(f"allocator: input '{bad[0]}' is not finite")
-        T = self.thrusts(tau)
+        T, sat, iterations = self.allocate(tau, h)
+        self._T_prev = T
         n = thrust_to_speed(self.vessel.thrusters, T)
+        if self._any_off:
+            n = np.where(self._off, 0.0, n)  # a failed or dropped thruster is commanded to stop
         tau_alloc = self.B @ T
-        m = self._m
+        m, d = self._m, self.vessel.dof
         y = self._y
         y[:m] = n
         y[m : 2 * m] = T
-        y[2 * m : -1] = tau_alloc
-        y[-1] = np.linalg.norm(tau_alloc - tau)
+        k = 2 * m + d
+        y[2 * m : k] = tau_alloc
+        y[k] = np.linalg.norm(tau_alloc - tau)
+        y[k + 1 : k + 1 + m] = sat
+        y[k + 1 + m] = negative_front_thrust(T, self._camera) if self._camera else 0.0
+        y[k + 2 + m] = T @ T
+        y[k + 3 + m] = iterations
         return y.copy()

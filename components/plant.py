@@ -17,6 +17,7 @@ from components.vessel_model import VesselModel
 from components.vessel_spec import ANGLE_NAMES, VesselSpec
 
 _MIN_SUBSTEP = 1e-6
+FAIL_MODES = ("ok", "stuck at zero", "stuck at value")
 
 
 def _units(vessel: VesselSpec) -> dict[str, str]:
@@ -66,6 +67,17 @@ class PlantBlock(Block):
                    for n in vessel.eta_names + vessel.nu_names]
         params.append(Signal("substep", "s", "max RK4 step; a co-simulation step h is split into "
                              "ceil(h / substep) equal RK4 steps", min=_MIN_SUBSTEP, start=0.01))
+        # Thruster failures (appended: the earlier parameters keep their order). A failed drive
+        # ignores its command; the shaft still follows the first-order lag to 0 or to the value.
+        for i, name in enumerate(th.names):
+            params.append(Signal(f"fail_mode_{i + 1}", "", f"thruster {i + 1} '{name}': 0 = ok, 1 = failed, "
+                                 "stuck at zero speed, 2 = failed, stuck at fail_value", min=0,
+                                 max=len(FAIL_MODES) - 1, start=0, type="integer", tunable=True))
+        for i, name in enumerate(th.names):
+            n_max = float(th.n_max[i])
+            params.append(Signal(f"fail_value_{i + 1}", "rev/s", f"thruster {i + 1} '{name}': shaft speed "
+                                 "it is stuck at when fail_mode = 2", min=-n_max, max=n_max, start=0.0,
+                                 tunable=True))
         return Interface(inputs=inputs, outputs=outputs, parameters=params)
 
     def __init__(self, vessel: VesselSpec, params: dict[str, Any]) -> None:
@@ -93,6 +105,11 @@ class PlantBlock(Block):
                                     self._noise_scale)
         self._sensors.initialise(self._x[: 2 * d])
         self._sensor_out: list[float] = []
+        self._stuck: list[tuple[int, float]] = []  # (thruster index, speed command it is stuck at)
+        for i in range(vessel.thrusters.count):
+            self._check_failure(f"fail_mode_{i + 1}", self.params[f"fail_mode_{i + 1}"])
+            self._check_failure(f"fail_value_{i + 1}", self.params[f"fail_value_{i + 1}"])
+        self._apply_failures()
         self._y = self._outputs()
 
     def _real(self, name: str, lo: float | None = None) -> float:
@@ -150,12 +167,51 @@ class PlantBlock(Block):
         model = self._model
         steps = max(1, math.ceil(h / self._substep - 1e-9))
         vcn, vce = self._current.ned()
+        for i, value in self._stuck:  # failed drives ignore their command
+            ul[i] = value
         self._x = model.rk4(self._x, model.clip(ul), h / steps, steps, vcn, vce)
         changed = self._sensors.update(t, h, self._x[: 2 * self.vessel.dof])
         self._y = self._outputs(changed)
         return self._y.copy()
 
+    # -- thruster failures -----------------------------------------------------------------------
+    def _check_failure(self, name: str, value: Any) -> None:
+        """ValueError naming the parameter unless it is a valid fail_mode_i / fail_value_i."""
+        try:
+            f = float(value)
+        except (TypeError, ValueError):
+            raise ValueError(f"{name} must be a number, got {value!r}") from None
+        i = int(name.rsplit("_", 1)[1]) - 1
+        if name.startswith("fail_mode_") and f not in range(len(FAIL_MODES)):
+            modes = ", ".join(f"{k} = {m}" for k, m in enumerate(FAIL_MODES))
+            raise ValueError(f"{name} must be one of {modes}; got {value!r}")
+        n_max = float(self.vessel.thrusters.n_max[i])
+        if name.startswith("fail_value_") and not (math.isfinite(f) and abs(f) <= n_max):
+            raise ValueError(f"{name} must be within +-{n_max:g} rev/s, got {value!r}")
+
+    def _apply_failures(self) -> None:
+        stuck = []
+        for i in range(self.vessel.thrusters.count):
+            mode = int(float(self.params[f"fail_mode_{i + 1}"]))
+            if mode == 1:
+                stuck.append((i, 0.0))
+            elif mode == 2:
+                stuck.append((i, float(self.params[f"fail_value_{i + 1}"])))
+        self._stuck = stuck
+
+    @property
+    def failed(self) -> list[int]:
+        """0-based indices of the thrusters whose drive has failed."""
+        return [i for i, _ in self._stuck]
+
     def set_parameter(self, name: str, value: Any) -> None:
+        if name.startswith(("fail_mode_", "fail_value_")):
+            if name not in self.params:
+                raise ValueError(f"{type(self).__name__}: unknown parameter '{name}'")
+            self._check_failure(name, value)
+            self.params[name] = value
+            self._apply_failures()
+            return
         if name in ("current_speed", "current_direction"):
             old = self.params[name]
             self.params[name] = value

@@ -50,7 +50,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
                 r = build_fmu(sc.vessel, inst.kind)
                 if r.rebuilt:
                     print(f"built {r.path}")
-    result = run(sc, mode=mode, progress=not args.quiet)
+    record = out / "recording" if any(i.hardware for i in sc.instances) else None
+    result = run(sc, mode=mode, progress=not args.quiet and not sc.realtime, record_dir=record)
     checks = evaluate_checks(result)
     data = summary(result, checks)
     write_csv(result, out / "results.csv")
@@ -60,6 +61,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
           f"(real-time factor {result.realtime_factor:.0f}, mode {mode})")
     for name, us in data["us_per_step"].items():
         print(f"  {name:<12} {us:8.1f} µs/step")
+    if result.pacing_summary:
+        print(f"  pacing: {result.pacing_summary}")
     for c in checks:
         print(f"  [{'PASS' if c.passed else 'FAIL'}] {c.name}: {c.value:.4g} ({c.bound})")
     print(f"report: {report}")
@@ -82,6 +85,9 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("--inprocess", action="store_true", help="run the components without FMI (comparison)")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     r.set_defaults(fn=_cmd_run)
+    from hardware.cli import register as register_hardware
+
+    register_hardware(sub)
     args = parser.parse_args(argv)
     from components.vessel_spec import VesselFileError
     from seafmu.master import SimulationError

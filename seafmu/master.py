@@ -42,6 +42,8 @@ class RunResult:
     steps: dict[str, int]
     mode: str
     log: list[str] = field(default_factory=list)
+    pacing: dict[str, Any] | None = None  # real-time runs: factor over windows, jitter percentiles
+    pacing_summary: str = ""
 
     @property
     def realtime_factor(self) -> float:
@@ -295,8 +297,12 @@ class FmuUnit(_Unit):
 # -- the master loop ---------------------------------------------------------------------------
 
 def run(scenario: Scenario, mode: Mode = "fmu", progress: bool = True,
-        fmu_files: dict[str, Path] | None = None) -> RunResult:
-    """Run a resolved scenario; ``fmu_files`` maps instance -> FMU (built ones by default)."""
+        fmu_files: dict[str, Path] | None = None, record_dir: Path | None = None) -> RunResult:
+    """Run a resolved scenario; ``fmu_files`` maps instance -> FMU (built ones by default).
+
+    An instance with a hardware profile is a ``HardwareLink`` (a real or emulated vessel); the link
+    paces the loop to the wall clock and records its traffic under ``record_dir``.
+    """
     log: list[str] = []
     inputs_of: dict[str, list[tuple[str, str, str]]] = {}
     for si, sv, di, dv in scenario.connections:
@@ -306,7 +312,15 @@ def run(scenario: Scenario, mode: Mode = "fmu", progress: bool = True,
     try:
         for inst in scenario.instances:
             in_names = [dv for dv, _, _ in inputs_of.get(inst.name, [])]
-            if mode == "inprocess":
+            if inst.hardware is not None:
+                from hardware.link import HardwareError, HardwareLink
+
+                try:
+                    units.append(HardwareLink(inst.hardware, name=inst.name, in_names=in_names, log_lines=log,
+                                              record_dir=record_dir, vessel=scenario.vessel))
+                except (HardwareError, ValueError, OSError) as exc:
+                    raise SimulationError(f"{inst.name}: {' '.join(str(exc).split())}") from None
+            elif mode == "inprocess":
                 units.append(BlockUnit(inst, scenario.vessel, in_names))
             else:
                 path = inst.fmu_file or (fmu_files or {}).get(inst.name)
@@ -315,7 +329,12 @@ def run(scenario: Scenario, mode: Mode = "fmu", progress: bool = True,
 
                     path = build_fmu(scenario.vessel, inst.kind or "").path
                 units.append(FmuUnit(inst, Path(path), in_names, log))
-        return _loop(scenario, units, mode, progress, log)
+        result = _loop(scenario, units, mode, progress, log)
+        links = [u for u in units if hasattr(u, "pacing_stats")]
+        if links:
+            stats = links[0].pacing_stats()  # type: ignore[attr-defined]
+            result.pacing, result.pacing_summary = stats.as_dict(), stats.summary()
+        return result
     finally:
         for u in units:
             if isinstance(u, FmuUnit):
@@ -406,6 +425,14 @@ def _loop(scenario: Scenario, units: list[_Unit], mode: str, progress: bool, log
 
         bar = tqdm(total=n_steps, desc=scenario.name, unit="step", delay=1.0, leave=False)
     perf = time.perf_counter
+    # A hardware link paces the loop itself (it sleeps to the wall clock inside its step); a
+    # simulation-only run asked to be real-time gets a pacer here.
+    pacer = None
+    if scenario.realtime and not any(hasattr(u, "pacing_stats") for u in units):
+        from hardware.pacing import Pacer
+
+        pacer = Pacer(h)
+        pacer.start()
     wall0 = perf()
     for k in range(n_steps):
         t = k * h
@@ -435,6 +462,8 @@ def _loop(scenario: Scenario, units: list[_Unit], mode: str, progress: bool, log
             steps[u.name] += 1
         if (k + 1) % rec_every == 0:
             record((k + 1) // rec_every, (k + 1) * h)
+        if pacer is not None:
+            pacer.wait_until(k + 1)
         if bar is not None and k % 200 == 0:
             bar.update(min(200, n_steps - k))
     wall = perf() - wall0
@@ -444,4 +473,8 @@ def _loop(scenario: Scenario, units: list[_Unit], mode: str, progress: bool, log
     signals = {f"{i}.{v}": rec[:, j] for j, (i, v) in enumerate(rec_keys)}
     for j, (i, v) in enumerate(extra):
         signals[f"{i}.{v}"] = extra_rec[:, j]
-    return RunResult(scenario, times, signals, wall, step_time, steps, mode, log)
+    result = RunResult(scenario, times, signals, wall, step_time, steps, mode, log)
+    if pacer is not None:
+        stats = pacer.stats()
+        result.pacing, result.pacing_summary = stats.as_dict(), stats.summary()
+    return result

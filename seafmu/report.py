@@ -131,6 +131,8 @@ def write_report(result: RunResult, checks: list[CheckResult], summary: dict[str
     ]
     for k, v in summary["us_per_step"].items():
         lines.append(f"| {k} | {v:.1f} µs per step ({result.steps[k]} steps) |")
+    if result.pacing_summary:
+        lines.append(f"| real-time pacing | {result.pacing_summary} |")
     lines += ["", "## Checks", ""]
     if checks:
         lines += ["| check | value | bound | result |", "|---|---|---|---|"]

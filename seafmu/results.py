@@ -91,6 +91,7 @@ def summary(result: RunResult, checks: list[CheckResult]) -> dict[str, Any]:
         "checks": [asdict(c) for c in checks],
         "checks_passed": all(c.passed for c in checks),
         "fmu_messages": result.log,
+        "pacing": result.pacing,
     }
 
 

@@ -36,13 +36,15 @@ class _Strict(BaseModel):
 class FmuEntry(_Strict):
     kind: Literal["plant", "observer", "controller", "allocator"] | None = None
     fmu: str | None = Field(None, description="path to any FMI 2.0 co-simulation FMU instead of a kind")
+    hardware: str | None = Field(None, description="a hardware profile (hardware/profiles/NAME.yaml or a "
+                                 "path): a real or emulated vessel behind serial NMEA and CAN")
     step_multiple: int = Field(1, ge=1, description="this FMU steps every N master steps")
     parameters: dict[str, Value] = Field(default_factory=dict)
 
     @model_validator(mode="after")
     def _one_source(self) -> FmuEntry:
-        if (self.kind is None) == (self.fmu is None):
-            raise ValueError("give exactly one of 'kind' or 'fmu'")
+        if sum(x is not None for x in (self.kind, self.fmu, self.hardware)) != 1:
+            raise ValueError("give exactly one of 'kind', 'fmu' or 'hardware'")
         return self
 
 
@@ -84,6 +86,7 @@ class ScenarioModel(_Strict):
     duration: float = Field(gt=0)
     step: float = Field(gt=0, description="master communication step, s")
     record_interval: float | None = Field(None, gt=0)
+    realtime: bool = Field(False, description="pace the run to the wall clock (always, with hardware)")
     fmus: dict[str, FmuEntry] | None = None
     connect: Literal["auto", "explicit"] = "auto"
     connections: list[str] = Field(default_factory=list)
@@ -114,6 +117,7 @@ class Instance:
     step_multiple: int
     parameters: dict[str, Any]
     variables: dict[str, VarInfo]
+    hardware: str | None = None  # hardware profile: the instance is a HardwareLink
 
 
 @dataclass
@@ -130,6 +134,7 @@ class Scenario:
     events: list[tuple[float, str, str, Any]]
     outputs: list[tuple[str, str]]
     checks: list[Check]
+    realtime: bool = False
 
     def instance(self, name: str) -> Instance:
         return next(i for i in self.instances if i.name == name)
@@ -216,6 +221,34 @@ def interface_variables(vessel: str, kind: str) -> dict[str, VarInfo]:
             variability = ("tunable" if s.tunable else "fixed") if causality == "parameter" else "continuous"
             out[s.name] = VarInfo(s.name, causality, s.type, s.unit, variability, s.min, s.max, s.start)
     out["vessel_file"] = VarInfo("vessel_file", "parameter", "string", "", "fixed")
+    return out
+
+
+def _profile_path(profile: str, path: Path) -> str:
+    p = Path(profile)
+    if p.suffix in (".yaml", ".yml") and not p.is_absolute():
+        p = (path.parent / p).resolve()
+        return str(p)
+    return profile
+
+
+def hardware_variables(profile: str, vessel: str, path: Path, where: str) -> dict[str, VarInfo]:
+    """The link's variables from its profile (no port opened), checked against the scenario's vessel."""
+    from hardware.link import HardwareLink
+    from hardware.profile import load_profile
+
+    try:
+        prof = load_profile(_profile_path(profile, path))
+        iface = HardwareLink.interface(prof)
+    except (ValueError, RuntimeError, OSError) as exc:
+        raise _fail(path, where, " ".join(str(exc).split())) from None
+    if prof.vessel != vessel:
+        raise _fail(path, where,
+                    f"profile '{profile}' is for vessel '{prof.vessel}', the scenario's is '{vessel}'")
+    out: dict[str, VarInfo] = {}
+    for causality, sigs in (("input", iface.inputs), ("output", iface.outputs)):
+        for s in sigs:
+            out[s.name] = VarInfo(s.name, causality, s.type, s.unit, "continuous", s.min, s.max, s.start)
     return out
 
 
@@ -325,6 +358,9 @@ def resolve(model: ScenarioModel, path: Path) -> Scenario:
         if e.kind is not None:
             variables = interface_variables(model.vessel, e.kind)
             fmu_file = None
+        elif e.hardware is not None:
+            variables = hardware_variables(e.hardware, model.vessel, path, f"{where}.hardware")
+            fmu_file = None
         else:
             fmu_file = (path.parent / e.fmu).resolve() if not Path(e.fmu).is_absolute() else Path(e.fmu)
             if not fmu_file.is_file():
@@ -345,7 +381,8 @@ def resolve(model: ScenarioModel, path: Path) -> Scenario:
         if e.kind is not None and params.get("vessel_file"):
             params["vessel_file"] = _check_vessel_file(params["vessel_file"], model.vessel, e.kind, path,
                                                        f"{where}.parameters.vessel_file")
-        instances.append(Instance(name, e.kind, fmu_file, e.step_multiple, params, variables))
+        instances.append(Instance(name, e.kind, fmu_file, e.step_multiple, params, variables,
+                                  hardware=_profile_path(e.hardware, path) if e.hardware else None))
     by_name = {i.name: i for i in instances}
 
     def lookup(ref: str, where: str, causality: tuple[str, ...]) -> tuple[str, str, VarInfo]:
@@ -464,4 +501,5 @@ def resolve(model: ScenarioModel, path: Path) -> Scenario:
         events=events,
         outputs=outputs,
         checks=model.checks,
+        realtime=model.realtime or any(i.hardware for i in instances),
     )

@@ -43,7 +43,7 @@ class Out(NamedTuple):
 
 def split(vessel: VesselSpec, y: np.ndarray) -> Out:
     m, d = vessel.thrusters.count, vessel.dof
-    return Out(y[:m], y[m : 2 * m], y[2 * m : 2 * m + d], float(y[-1]))
+    return Out(y[:m], y[m : 2 * m], y[2 * m : 2 * m + d], float(y[2 * m + d]))
 
 
 # Thesis, pseudo-inverse with K = 1 (thrust in N per unit of the thruster command).

@@ -52,6 +52,7 @@ def test_interface_amv(amv: VesselSpec) -> None:
     assert list(params) == [
         "seed", "noise_scale", "current_speed", "current_direction",
         "north_0", "east_0", "yaw_0", "u_0", "v_0", "r_0", "substep",
+        "fail_mode_1", "fail_mode_2", "fail_value_1", "fail_value_2",
     ]  # fmt: skip
     assert params["seed"].type == "integer" and params["seed"].start == 0
     assert params["noise_scale"].start == 1.0 and params["noise_scale"].min == 0
@@ -298,3 +299,67 @@ def test_course_and_speed_over_ground(amv: VesselSpec) -> None:
     assert out["sog"] == pytest.approx(np.hypot(vn, ve), rel=1e-12)
     assert out["course"] == pytest.approx(np.arctan2(ve, vn), abs=1e-12)
     assert abs(out["course"] - out["yaw"]) > 0.05  # drifting west: course is not the heading
+
+
+# -- thruster failures (issue 5) --------------------------------------------------------------------
+def test_failure_parameters_are_appended_and_tunable(minerva: VesselSpec) -> None:
+    params = PlantBlock.interface(minerva).parameters
+    names = [p.name for p in params]
+    assert names[-14:] == [f"fail_mode_{i}" for i in range(1, 8)] + [f"fail_value_{i}" for i in range(1, 8)]
+    assert names.index("substep") == len(names) - 15  # everything before them keeps its place
+    spec = {p.name: p for p in params}
+    mode = spec["fail_mode_3"]
+    assert mode.type == "integer" and mode.tunable and mode.min == 0 and mode.max == 2
+    assert spec["fail_value_3"].unit == "rev/s" and spec["fail_value_3"].tunable
+    assert spec["fail_value_3"].min == -20.0 and spec["fail_value_3"].max == 20.0
+
+
+def test_failed_thruster_ignores_its_command(minerva: VesselSpec) -> None:
+    """Stuck at zero, stuck at a value, repaired: the shaft follows the lag to what the drive does."""
+    block = PlantBlock(minerva, {"noise_scale": 0.0})
+    names = PlantBlock.interface(minerva).output_names()
+    i_n, i_T = names.index("n_1"), names.index("thrust_1")
+    cmd = np.full(7, 10.0)
+    y = run(block, np.tile(cmd, (40, 1)), 0.05)[-1]  # 2 s = 10 shaft time constants
+    np.testing.assert_allclose(y[i_n : i_n + 7], 10.0, atol=1e-3)
+    block.set_parameter("fail_mode_3", 1)  # stuck at zero
+    assert block.failed == [2]
+    y = run(block, np.tile(cmd, (40, 1)), 0.05, t0=2.0)[-1]
+    assert abs(y[i_n + 2]) < 1e-3 and abs(y[i_T + 2]) < 1e-3
+    np.testing.assert_allclose(np.delete(y[i_n : i_n + 7], 2), 10.0, atol=1e-3)
+    block.set_parameter("fail_value_3", -5.0)
+    block.set_parameter("fail_mode_3", 2)  # stuck at -5 rev/s: reverse thrust 0.7 * 25 N
+    y = run(block, np.tile(cmd, (40, 1)), 0.05, t0=4.0)[-1]
+    assert y[i_n + 2] == pytest.approx(-5.0, abs=1e-3)
+    assert y[i_T + 2] == pytest.approx(-0.7 * 25.0, abs=0.01)
+    block.set_parameter("fail_mode_3", 0)  # repaired
+    assert block.failed == []
+    y = run(block, np.tile(cmd, (40, 1)), 0.05, t0=6.0)[-1]
+    assert y[i_n + 2] == pytest.approx(10.0, abs=1e-2)
+
+
+def test_failure_at_start_and_copied_with_the_state(minerva: VesselSpec) -> None:
+    block = PlantBlock(minerva, {"noise_scale": 0.0, "fail_mode_1": 2, "fail_value_1": 15.0})
+    run(block, np.zeros((20, 7)), 0.05)
+    twin = copy.deepcopy(block)
+    a = run(block, np.zeros((20, 7)), 0.05, t0=1.0)
+    b = run(twin, np.zeros((20, 7)), 0.05, t0=1.0)
+    np.testing.assert_array_equal(a, b)
+    assert block.state[12] == pytest.approx(15.0, abs=1e-3)  # n_1 runs at the stuck speed, command 0
+    assert abs(block.state[0]) + abs(block.state[1]) > 0.0  # and pushes the ROV
+
+
+@pytest.mark.parametrize(
+    ("name", "value", "message"),
+    [("fail_mode_2", 3, "fail_mode_2 must be one of"), ("fail_mode_2", 0.5, "fail_mode_2 must be one of"),
+     ("fail_value_2", 25.0, "fail_value_2 must be within"),
+     ("fail_value_2", "x", "fail_value_2 must be a number")],
+)
+def test_bad_failure_parameters_raise_naming_them(minerva: VesselSpec, name: str, value: object,
+                                                  message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        PlantBlock(minerva, {name: value})
+    block = PlantBlock(minerva, {})
+    with pytest.raises(ValueError, match=message):
+        block.set_parameter(name, value)
+    assert block.failed == []

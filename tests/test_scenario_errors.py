@@ -117,7 +117,7 @@ CASES = [
      "fmus.plant.parameters.noise_scale: -1 is below the minimum 0"),
     ("parameter that does not exist", {"fmus/plant/parameters/gravity": 9.8},
      "fmus.plant.parameters.gravity: no such variable"),
-    ("both kind and fmu", {"fmus/observer/fmu": "x.fmu"}, "give exactly one of 'kind' or 'fmu'"),
+    ("both kind and fmu", {"fmus/observer/fmu": "x.fmu"}, "give exactly one of 'kind', 'fmu' or 'hardware'"),
     ("missing FMU file", {"fmus/observer": {"fmu": "nowhere.fmu"}}, "fmus.observer.fmu: no such FMU file"),
 ]
 
@@ -183,3 +183,16 @@ def test_cli_entry_point_no_traceback(tmp_path: Path) -> None:
     assert proc.returncode == 2
     assert "Traceback" not in proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1
+
+
+def test_hardware_plant_in_a_scenario(tmp_path: Path) -> None:
+    """A hardware profile stands in for the plant: validated without opening a port."""
+    doc = _mutate({"fmus/plant": {"hardware": "emulator_pty"}, "checks/0/signal": "observer.north_hat"})
+    sc = load_scenario(_write(tmp_path, doc))
+    assert sc.realtime and sc.instance("plant").hardware == "emulator_pty"
+    assert ("plant", "meas_north", "observer", "meas_north") in sc.connections
+    # a real vessel reports no true state: checks on it fail by name, before the run
+    with pytest.raises(ScenarioError, match="FMU 'plant' has no variable 'north'"):
+        load_scenario(_write(tmp_path, _mutate({"fmus/plant": {"hardware": "emulator_pty"}})))
+    with pytest.raises(ScenarioError, match="fmus.plant.hardware: hardware profile 'nowhere'"):
+        load_scenario(_write(tmp_path, _mutate({"fmus/plant": {"hardware": "nowhere"}})))

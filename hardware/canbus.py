@@ -1,0 +1,268 @@
+"""Thruster setpoints, enables and feedback as CAN frames, defined in DBC files and coded by cantools.
+
+Two mappings, one interface (``ThrusterCodec``):
+
+- ``seafmu`` (``seafmu_thrusters.dbc``): per thruster i (1..8) a command ``THR_CMD_i`` (0x100 + i:
+  speed setpoint 0.01 rev/s, enable, alive counter) and a status ``THR_STATUS_i`` (0x180 + i:
+  measured speed, enabled, fault bits, alive counter). Standard 11-bit ids, DLC 4.
+- ``nmea2000`` (``nmea2000_thrusters.dbc``): PGN 128006 Thruster Control Status (direction, power,
+  speed in % of n_max) as the demand from seafmu's source address and as each thruster's reported
+  state from its own; PGN 128008 Thruster Motor Status for fault bits. Limits: 1 % speed steps,
+  no command-timeout fault bit; demands go out as broadcast 128006, not wrapped in PGN 126208
+  Command Group Function (a fast-packet message), which some commercial thrusters require.
+
+Fault bits (``Feedback.faults``): 1 over-current, 2 over-temperature, 4 command timeout, 8 hardware.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import can
+import cantools
+import numpy as np
+from cantools.database.errors import DecodeError
+
+FAULT_OVERCURRENT, FAULT_OVERTEMPERATURE, FAULT_COMMAND_TIMEOUT, FAULT_HARDWARE = 1, 2, 4, 8
+_FAULT_SIGNALS = (
+    ("fault_overcurrent", FAULT_OVERCURRENT),
+    ("fault_overtemperature", FAULT_OVERTEMPERATURE),
+    ("fault_command_timeout", FAULT_COMMAND_TIMEOUT),
+    ("fault_hardware", FAULT_HARDWARE),
+)
+
+
+class CanFrameError(ValueError):
+    """A frame that cannot be used; ``kind`` is its drop class (counted by the link)."""
+
+    def __init__(self, kind: str, msg: str) -> None:
+        super().__init__(msg)
+        self.kind = kind
+
+
+@dataclass(frozen=True)
+class Command:
+    """A setpoint as the vessel side receives it (index 0-based)."""
+
+    index: int
+    speed: float  # rev/s
+    enable: bool
+
+
+@dataclass(frozen=True)
+class Feedback:
+    """A thruster's report as seafmu receives it (index 0-based); None: not in this frame."""
+
+    index: int
+    speed: float | None  # rev/s
+    enabled: bool | None
+    faults: int | None
+
+
+def _check(msg: can.Message, length: int, name: str) -> None:
+    if msg.is_remote_frame:
+        raise CanFrameError("unexpected", f"remote frame {name} (0x{msg.arbitration_id:X})")
+    if msg.dlc != length or len(msg.data) != length:
+        raise CanFrameError(
+            "wrong_dlc", f"{name} (0x{msg.arbitration_id:X}): DLC {msg.dlc}, expected {length}"
+        )
+
+
+class ThrusterCodec:
+    """Base: build command and status frames, decode either kind; frame errors raise CanFrameError."""
+
+    mapping = ""
+
+    def __init__(self, n_max: np.ndarray, dbc: Path) -> None:
+        self.n_max = np.asarray(n_max, dtype=float)
+        self.count = len(self.n_max)
+        self.db = cantools.database.load_file(str(dbc))
+
+    def command(self, index: int, speed: float, enable: bool, counter: int) -> can.Message:
+        raise NotImplementedError
+
+    def status(self, index: int, speed: float, enabled: bool, faults: int, counter: int) -> list[can.Message]:
+        raise NotImplementedError
+
+    def decode(self, msg: can.Message) -> Command | Feedback:
+        raise NotImplementedError
+
+
+class SeafmuCodec(ThrusterCodec):
+    """One command and one status message per thruster (``seafmu_thrusters.dbc``)."""
+
+    mapping = "seafmu"
+
+    def __init__(self, n_max: np.ndarray, dbc: Path) -> None:
+        super().__init__(n_max, dbc)
+        self._cmd = [self.db.get_message_by_name(f"THR_CMD_{i + 1}") for i in range(self.count)]
+        self._sts = [self.db.get_message_by_name(f"THR_STATUS_{i + 1}") for i in range(self.count)]
+        self._by_id: dict[int, tuple[str, int]] = {}
+        for i in range(self.count):
+            self._by_id[self._cmd[i].frame_id] = ("cmd", i)
+            self._by_id[self._sts[i].frame_id] = ("status", i)
+
+    def command(self, index: int, speed: float, enable: bool, counter: int) -> can.Message:
+        m = self._cmd[index]
+        data = m.encode(
+            {"speed_setpoint": speed, "enable": int(enable), "counter": counter % 16}, strict=True
+        )
+        return can.Message(arbitration_id=m.frame_id, data=data, is_extended_id=False)
+
+    def status(self, index: int, speed: float, enabled: bool, faults: int, counter: int) -> list[can.Message]:
+        m = self._sts[index]
+        sig = {
+            "speed_measured": float(np.clip(speed, -300.0, 300.0)),
+            "enabled": int(enabled),
+            "counter": counter % 16,
+        }
+        sig.update({name: int(bool(faults & bit)) for name, bit in _FAULT_SIGNALS})
+        return [can.Message(arbitration_id=m.frame_id, data=m.encode(sig, strict=True), is_extended_id=False)]
+
+    def decode(self, msg: can.Message) -> Command | Feedback:
+        entry = self._by_id.get(msg.arbitration_id) if not msg.is_extended_id else None
+        if entry is None:
+            raise CanFrameError("unknown_id", f"unknown CAN id 0x{msg.arbitration_id:X}")
+        kind, i = entry
+        m = self._cmd[i] if kind == "cmd" else self._sts[i]
+        _check(msg, m.length, m.name)
+        try:
+            d = m.decode(bytes(msg.data), decode_choices=False, scaling=True)
+        except (DecodeError, ValueError) as exc:
+            raise CanFrameError("decode", f"{m.name}: {exc}") from None
+        if kind == "cmd":
+            return Command(i, float(d["speed_setpoint"]), bool(d["enable"]))
+        faults = sum(bit for name, bit in _FAULT_SIGNALS if d[name])
+        return Feedback(i, float(d["speed_measured"]), bool(d["enabled"]), faults)
+
+
+class Nmea2000Codec(ThrusterCodec):
+    """PGN 128006 (demand and reported state) and 128008 (motor events) (``nmea2000_thrusters.dbc``)."""
+
+    mapping = "nmea2000"
+    PRIORITY = 2
+    _OFF, _READY, _TO_PORT, _TO_STARBOARD = 0, 1, 2, 3
+    _MOTOR_FAULTS = ((1, FAULT_OVERTEMPERATURE), (2, FAULT_OVERCURRENT), (16, FAULT_HARDWARE))
+
+    def __init__(
+        self,
+        n_max: np.ndarray,
+        dbc: Path,
+        source_address: int = 0x10,
+        thruster_address: int = 0x20,
+        command_timeout: float = 0.25,
+    ) -> None:
+        super().__init__(n_max, dbc)
+        self._ctrl = self.db.get_message_by_name("PGN_128006_ThrusterControlStatus")
+        self._motor = self.db.get_message_by_name("PGN_128008_ThrusterMotorStatus")
+        self.sa = source_address
+        self.thr_sa = thruster_address
+        self.timeout = min(command_timeout, 0.253)
+        self._sid = 0
+
+    @staticmethod
+    def pgn(arbitration_id: int) -> int:
+        """PGN of a 29-bit NMEA 2000 id (PDU2 form; both thruster PGNs are PDU2)."""
+        return (arbitration_id >> 8) & 0x3FFFF
+
+    def _id(self, message: cantools.database.Message, sa: int) -> int:
+        return (self.PRIORITY << 26) | (self.pgn(message.frame_id) << 8) | sa
+
+    def _speed(self, index: int, speed: float, enable: bool) -> dict[str, float]:
+        pct = min(100, round(100.0 * abs(speed) / self.n_max[index])) if math.isfinite(speed) else 0
+        direction = (
+            self._OFF
+            if not enable
+            else (self._READY if pct == 0 else (self._TO_STARBOARD if speed > 0 else self._TO_PORT))
+        )
+        return {"Direction_Control": direction, "Power_Enabled": int(enable), "Speed_Control": pct}
+
+    def command(self, index: int, speed: float, enable: bool, counter: int) -> can.Message:
+        sig = {
+            "SID": counter % 252,
+            "Identifier": index,
+            "Retract_Control": 0,
+            "Control_Events": 0,
+            "Command_Timeout": self.timeout,
+            "Azimuth_Control": 0.0,
+            **self._speed(index, speed, enable),
+        }
+        data = self._ctrl.encode(sig, strict=True)
+        return can.Message(arbitration_id=self._id(self._ctrl, self.sa), data=data, is_extended_id=True)
+
+    def status(self, index: int, speed: float, enabled: bool, faults: int, counter: int) -> list[can.Message]:
+        sa = self.thr_sa + index
+        state = {
+            "SID": counter % 252,
+            "Identifier": index,
+            "Retract_Control": 0,
+            "Control_Events": 0,
+            "Command_Timeout": self.timeout,
+            "Azimuth_Control": 0.0,
+            **self._speed(index, speed, enabled),
+        }
+        events = sum(n2k for n2k, bit in self._MOTOR_FAULTS if faults & bit)
+        motor = {
+            "SID": counter % 252,
+            "Identifier": index,
+            "Motor_Events": events,
+            "Current": 0,
+            "Temperature": 293.15,
+            "Operating_Time": 0,
+        }
+        return [
+            can.Message(
+                arbitration_id=self._id(self._ctrl, sa),
+                data=self._ctrl.encode(state, strict=True),
+                is_extended_id=True,
+            ),
+            can.Message(
+                arbitration_id=self._id(self._motor, sa),
+                data=self._motor.encode(motor, strict=True),
+                is_extended_id=True,
+            ),
+        ]
+
+    def decode(self, msg: can.Message) -> Command | Feedback:
+        pgn = self.pgn(msg.arbitration_id) if msg.is_extended_id else -1
+        if pgn == 128006:
+            m = self._ctrl
+        elif pgn == 128008:
+            m = self._motor
+        else:
+            raise CanFrameError("unknown_id", f"unknown CAN id 0x{msg.arbitration_id:X} (PGN {pgn})")
+        _check(msg, m.length, m.name)
+        try:
+            d = m.decode(bytes(msg.data), decode_choices=False, scaling=True)
+        except (DecodeError, ValueError) as exc:
+            raise CanFrameError("decode", f"{m.name}: {exc}") from None
+        i = int(d["Identifier"])
+        if i >= self.count:
+            raise CanFrameError("unknown_id", f"{m.name}: thruster identifier {i}, vessel has {self.count}")
+        if pgn == 128008:
+            events = int(d["Motor_Events"])
+            return Feedback(i, None, None, sum(bit for n2k, bit in self._MOTOR_FAULTS if events & n2k))
+        direction, pct = int(d["Direction_Control"]), float(d["Speed_Control"])
+        sign = {self._TO_STARBOARD: 1.0, self._TO_PORT: -1.0}.get(direction, 0.0)
+        speed = sign * pct / 100.0 * float(self.n_max[i])
+        enabled = bool(d["Power_Enabled"] == 1) and direction != self._OFF
+        if (msg.arbitration_id & 0xFF) == self.sa:
+            return Command(i, speed, enabled)
+        return Feedback(i, speed, enabled, None)
+
+
+def make_codec(
+    mapping: str,
+    n_max: np.ndarray,
+    dbc: Path,
+    source_address: int = 0x10,
+    thruster_address: int = 0x20,
+    command_timeout: float = 0.25,
+) -> ThrusterCodec:
+    if mapping == "seafmu":
+        return SeafmuCodec(n_max, dbc)
+    if mapping == "nmea2000":
+        return Nmea2000Codec(n_max, dbc, source_address, thruster_address, command_timeout)
+    raise ValueError(f"unknown CAN mapping {mapping!r} (seafmu, nmea2000)")

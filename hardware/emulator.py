@@ -1,0 +1,328 @@
+"""``seafmu emulate VESSEL --serial PORT --can INTERFACE:CHANNEL``: a vessel behind real protocols.
+
+The plant model (``components.plant.PlantBlock``, the numerics of the Plant FMU) runs in real
+time and speaks exactly what the hardware link expects from a vessel:
+
+- NMEA 0183 sensor sentences on the serial port, at each sensor's rate (the plant's own sampled,
+  noisy measurements; the profile's sentence mapping);
+- thruster command frames are read from the CAN bus (the profile's DBC mapping), applied to the
+  shafts, and answered with status frames (measured shaft speed, enable, fault bits) at
+  ``--status-rate``; a thruster whose commands stop for ``command_timeout`` stops and raises its
+  command-timeout fault bit, as a real drive does.
+
+The vessel waits "in the dock" until the first command frame arrives: its physics clock starts
+then, so an emulator started before seafmu is at t = 0 when seafmu's loop is; until then it sends
+its initial sample at the sensors' rates, so the link can start up.
+
+PORT is a pyserial URL, or ``pty[:PATH]``: a virtual null-modem cable whose other end (printed,
+and symlinked at PATH) is the port to give the link. The same for the CAN channel of ``slcan``
+(``slcan:pty[:PATH]``). The ready line on stdout names both: ``READY serial=... can=...``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import signal
+import sys
+import threading
+from collections import Counter
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from components.plant import PlantBlock
+from components.vessel_spec import load_vessel
+from hardware.canbus import FAULT_COMMAND_TIMEOUT, CanFrameError, Command
+from hardware.link import make_thruster_codec, sensor_mapping
+from hardware.nmea import NmeaCodec
+from hardware.pacing import Pacer
+from hardware.profile import CanConfig, HardwareProfile, SerialConfig, load_profile
+from hardware.ptybridge import NullModem
+from hardware.transport import CanPort, SerialLines
+
+
+class VesselEmulator:
+    """The plant in real time behind NMEA (serial) and CAN; ``run()`` until stopped."""
+
+    def __init__(
+        self,
+        profile: HardwareProfile,
+        plant_params: dict[str, Any] | None = None,
+        step: float = 0.01,
+        status_rate: float = 20.0,
+        record: str | Path | None = None,
+    ) -> None:
+        self.profile = profile
+        self.spec = load_vessel(profile.vessel)
+        spec = self.spec
+        self.plant = PlantBlock(spec, dict(plant_params or {}))
+        names = PlantBlock.interface(spec).output_names()
+        idx = {n: i for i, n in enumerate(names)}
+        self.mapping = sensor_mapping(profile, spec)
+        self.groups = [
+            (
+                s.name,
+                [idx[f"meas_{c}"] for c in s.channels],
+                list(s.channels),
+                idx[f"{s.name}_count"],
+                s.rate_hz,
+            )
+            for s in spec.sensors
+        ]
+        self._extra_idx = {"course": idx["course"], "sog": idx["sog"]}
+        self._n_idx = [idx[f"n_{i + 1}"] for i in range(spec.thrusters.count)]
+        self._true_idx = [idx[n] for n in spec.eta_names + spec.nu_names]
+        self.nmea = NmeaCodec(profile.origin.lat, profile.origin.lon, profile.talkers)
+        self.codec = make_thruster_codec(profile, spec)
+        self.counters: Counter[str] = Counter()
+        self.serial = SerialLines(
+            profile.serial.url,
+            profile.serial.baudrate,
+            profile.serial.options,
+            profile.reconnect_interval,
+            self.counters,
+        )
+        c = profile.can
+        self.can = CanPort(
+            c.interface, c.channel, c.bitrate, c.options, profile.reconnect_interval, self.counters
+        )
+        self.step = step
+        self.status_every = max(1, round(1.0 / (status_rate * step)))
+        m = spec.thrusters.count
+        self.cmd = np.zeros(m)
+        self.enable = np.zeros(m, dtype=bool)
+        self.last_cmd = np.full(m, -math.inf)
+        self.faults = np.zeros(m, dtype=int)
+        self.started = False
+        self.t = 0.0
+        self.silenced: set[str] = set()  # sensors not sent (fault injection: sensor silence)
+        self.stop_event = threading.Event()
+        self._record = open(record, "w") if record else None
+        if self._record:
+            self._record.write(
+                ",".join(["time", *spec.eta_names, *spec.nu_names, *[f"n_{i + 1}" for i in range(m)]]) + "\n"
+            )
+
+    def open(self) -> None:
+        if not self.serial.open() or not self.can.open():
+            raise OSError(f"emulator: cannot open serial {self.profile.serial.url} or CAN {self.can.name}")
+
+    def _sentences(self, y: np.ndarray, now: datetime, only: list[int] | None = None) -> bytes:
+        lines = []
+        extras = {k: float(y[i]) for k, i in self._extra_idx.items()}
+        for gi, (name, meas, chans, _, _) in enumerate(self.groups):
+            if (only is not None and gi not in only) or name in self.silenced:
+                continue
+            values = dict(zip(chans, (float(y[i]) for i in meas), strict=True)) | extras
+            for sen in self.mapping[name]:
+                lines.append(self.nmea.encode(sen, values, now))
+        return "".join(f"{ln}\r\n" for ln in lines).encode("ascii")
+
+    def _read_commands(self, now: float) -> None:
+        for msg in self.can.recv_all():
+            try:
+                item = self.codec.decode(msg)
+            except CanFrameError:
+                self.counters["bad_frame"] += 1
+                continue
+            if not isinstance(item, Command):
+                continue
+            lim = float(self.codec.n_max[item.index])
+            speed = item.speed if math.isfinite(item.speed) else 0.0
+            self.cmd[item.index] = min(max(speed, -lim), lim)
+            self.enable[item.index] = item.enable
+            self.last_cmd[item.index] = now
+            if not self.started:  # commanding begins: every drive's timeout counts from now
+                self.started = True
+                self.last_cmd[:] = now
+
+    def run(self, duration: float | None = None) -> None:
+        """Run until ``duration`` s of vessel time (after the first command) or ``stop_event``."""
+        # sleep only, no busy-wait: the null-modem threads need the GIL, and a vessel keeps its own time
+        pacer = Pacer(self.step, spin=0.0)
+        h = self.step
+        y = self.plant.output()
+        next_idle = [0.0] * len(self.groups)
+        counts = [y[g[3]] for g in self.groups]
+        k = 0
+        k0 = 0
+        while not self.stop_event.is_set():
+            pacer.wait_until(k)
+            wall = pacer.now()
+            self.serial.read_lines()  # nothing is expected from seafmu on the serial line: drain
+            was_started = self.started
+            self._read_commands(wall)
+            if not self.started:  # in the dock: initial sample at the sensors' rates
+                due = [gi for gi, g in enumerate(self.groups) if wall >= next_idle[gi]]
+                for gi in due:
+                    next_idle[gi] = wall + 1.0 / self.groups[gi][4]
+                if due:
+                    self.serial.write(self._sentences(y, datetime.now(UTC), due))
+                k += 1
+                continue
+            if not was_started:
+                k0 = k
+                self._write_true(y)
+            self.t = (k - k0) * h
+            if duration is not None and self.t >= duration - 1e-9:
+                break
+            timed_out = (wall - self.last_cmd) > self.profile.command_timeout
+            self.faults = np.where(
+                timed_out, self.faults | FAULT_COMMAND_TIMEOUT, self.faults & ~FAULT_COMMAND_TIMEOUT
+            )
+            u = np.where(self.enable & ~timed_out, self.cmd, 0.0)
+            y = self.plant.step(self.t, h, u)
+            new = [gi for gi, g in enumerate(self.groups) if y[g[3]] != counts[gi]]
+            if new:
+                for gi in new:
+                    counts[gi] = y[self.groups[gi][3]]
+                self.serial.write(self._sentences(y, datetime.now(UTC), new))
+            if (k - k0) % self.status_every == 0:
+                for i in range(len(u)):
+                    for msg in self.codec.status(
+                        i,
+                        float(y[self._n_idx[i]]),
+                        bool(self.enable[i] and not timed_out[i]),
+                        int(self.faults[i]),
+                        k,
+                    ):
+                        self.can.send(msg)
+            self._write_true(y, self.t + h)
+            k += 1
+
+    def _write_true(self, y: np.ndarray, t: float = 0.0) -> None:
+        if self._record is not None:
+            vals = [y[i] for i in self._true_idx] + [y[i] for i in self._n_idx]
+            self._record.write(f"{t:.4f}," + ",".join(f"{v:.9g}" for v in vals) + "\n")
+
+    def close(self) -> None:
+        self.serial.close()
+        self.can.close()
+        if self._record is not None:
+            self._record.close()
+            self._record = None
+
+
+def _port(spec: str, bridges: list[NullModem]) -> tuple[str, str]:
+    """(the emulator's end, the end to give the link) of a port spec: a URL, or pty[:PATH]."""
+    if spec == "pty" or spec.startswith("pty:"):
+        link = spec[4:] or None
+        nm = NullModem(link_b=link)
+        bridges.append(nm)
+        return nm.a, (link or nm.b)
+    return spec, spec
+
+
+def _plant_params(scenario: str | None, sets: list[str]) -> dict[str, Any]:
+    params: dict[str, Any] = {}
+    if scenario:
+        from seafmu.scenario import load_scenario
+
+        sc = load_scenario(scenario)
+        plant = next((i for i in sc.instances if i.kind == "plant"), None)
+        if plant is not None:
+            params.update({k: v for k, v in plant.parameters.items() if k != "vessel_file"})
+    for item in sets:
+        key, _, value = item.partition("=")
+        params[key.strip()] = float(value)
+    return params
+
+
+def build_parser(p: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
+    p = p or argparse.ArgumentParser(prog="seafmu emulate", description=__doc__.splitlines()[0])
+    p.add_argument("vessel", help="vessel file name (minerva2, amv_osf) or path")
+    p.add_argument(
+        "--serial", required=True, help="NMEA port: pyserial URL, or pty[:PATH] for a virtual cable"
+    )
+    p.add_argument(
+        "--can", required=True, help="INTERFACE:CHANNEL, e.g. slcan:pty, slcan:/dev/ttyACM0, socketcan:can0"
+    )
+    p.add_argument("--bitrate", type=int, default=500000, help="CAN bitrate (default 500000)")
+    p.add_argument(
+        "--profile",
+        help="hardware profile for the sentence and DBC mapping (default: by channel, seafmu DBC)",
+    )
+    p.add_argument(
+        "--scenario", help="take the plant parameters (seed, current, initial state) from this scenario"
+    )
+    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="a plant parameter (SI)")
+    p.add_argument("--step", type=float, default=0.01, help="physics step, s (default 0.01)")
+    p.add_argument("--status-rate", type=float, default=20.0, help="thruster status frames per second")
+    p.add_argument(
+        "--duration", type=float, help="stop after this much vessel time, s (default: until Ctrl-C)"
+    )
+    p.add_argument("--record", help="CSV file for the true state (what a real vessel cannot tell)")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    return run_args(args)
+
+
+def run_args(args: argparse.Namespace) -> int:
+    bridges: list[NullModem] = []
+    emu: VesselEmulator | None = None
+    try:
+        iface, _, channel = args.can.partition(":")
+        if not channel:
+            print("seafmu emulate: error: --can must be INTERFACE:CHANNEL", file=sys.stderr)
+            return 2
+        ser_emu, ser_link = _port(args.serial, bridges)
+        can_emu, can_link = _port(channel, bridges) if iface == "slcan" else (channel, channel)
+        base = load_profile(args.profile) if args.profile else None
+        options = {"sleep_after_open": 0} if iface == "slcan" else {}
+        profile = HardwareProfile(
+            name=base.name if base else f"{Path(args.vessel).stem}_emulated",
+            vessel=args.vessel,
+            serial=SerialConfig(url=ser_emu),
+            can=CanConfig(
+                interface=iface,
+                channel=can_emu,
+                bitrate=args.bitrate,
+                options=options,
+                mapping=base.can.mapping if base else "seafmu",
+                dbc=base.can.dbc if base else None,
+            ),
+            **(
+                {
+                    "origin": base.origin,
+                    "sensors": base.sensors,
+                    "talkers": base.talkers,
+                    "command_timeout": base.command_timeout,
+                }
+                if base
+                else {}
+            ),
+        )
+        emu = VesselEmulator(
+            profile, _plant_params(args.scenario, args.set), args.step, args.status_rate, args.record
+        )
+        emu.open()
+        stop = emu.stop_event
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, lambda *_: stop.set())
+        print(f"READY serial={ser_link} can={iface}:{can_link}", flush=True)
+        print(
+            f"seafmu emulate: {emu.spec.name} waiting for the first thruster command "
+            f"(NMEA on {ser_link}, CAN {iface}:{can_link})",
+            file=sys.stderr,
+            flush=True,
+        )
+        emu.run(args.duration)
+        return 0
+    except (OSError, ValueError) as exc:
+        print(f"seafmu emulate: error: {str(exc).splitlines()[0]}", file=sys.stderr)
+        return 2
+    finally:
+        if emu is not None:
+            emu.close()
+        for b in bridges:
+            b.close()
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,568 @@
+"""The hardware link: a real (or emulated) vessel in the plant's place in seafmu's master loop.
+
+``HardwareLink`` implements the master's unit protocol (``seafmu.master._Unit``) with the Plant
+FMU's variable names, so the observer, controller and allocator FMUs connect to it unchanged:
+
+- inputs ``n_cmd_1..m`` (rev/s) go out on the CAN bus every step, each clamped to the vessel's
+  ``n_max``; NaN/inf become 0; the watchdog can force them to 0 (with enable off);
+- outputs ``meas_<channel>`` and ``<sensor>_count`` are decoded from NMEA 0183 sentences; a
+  sensor's count rises by one when all the sentences of one sample have arrived (the observer
+  updates on a count change, exactly as with the Plant FMU); the first complete sample of every
+  sensor is awaited in ``initialize`` and counts as sample 1, like the plant's initial sample;
+- ``n_1..m`` is the thrusters' measured shaft speed from their CAN status frames (NaN before the
+  first); ``course`` and ``sog`` exist when a mapped sentence (RMC, VTG) carries them.
+- link status: ``fault_i`` (the thruster's fault bits), ``watchdog_alarm`` (0/1),
+  ``lines_dropped``, ``frames_dropped`` (bad input, running totals), ``commands_limited``
+  (commands clamped or replaced because NaN), ``port_losses``.
+
+The true state (``north``, ``u``, ``thrust_i`` ...) of a real vessel is unknown: those plant
+outputs are left out, so a scenario that connects or checks them fails validation by name.
+
+Timing: ``do_step(t, h)`` sends the commands, then waits until wall time ``t + h`` (the
+``Pacer``), then reads what arrived: its outputs are the vessel "at t + h", as a plant's are. So
+the link itself holds the master loop to real time (``pace=False`` leaves that to the caller).
+
+Watchdog: the link reads once per step, so it knows only that a datum arrived between two polls;
+it takes the earlier one as the arrival time, and trips when a watched source (a sensor, or
+``thrusters`` = any CAN status frame) would be older than ``timeout`` by the next poll. So the
+zero setpoints are on the bus no later than ``timeout`` after the last datum arrived (between
+``timeout - 2h`` and ``timeout - h``, plus the step jitter). Zero frames (enable off) go out at
+once, and every step while the alarm lasts. It clears when every watched source has delivered a
+new sample and is fresh again; the commands then ramp from 0 over ``resume_ramp``.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from cantools.database.errors import EncodeError
+
+from components.block import Interface, Signal
+from components.thrusters import speed_to_thrust
+from components.vessel_spec import ANGLE_NAMES, VesselSpec, load_vessel
+from hardware.canbus import CanFrameError, Command, Feedback, ThrusterCodec, make_codec
+from hardware.nmea import EXTRA_CHANNELS, SENTENCES, NmeaCodec, NmeaError, check_mapping, default_sentences
+from hardware.pacing import Pacer, PacingStats
+from hardware.profile import HardwareProfile, load_profile
+from hardware.recording import Recorder, trial_meta
+from hardware.transport import CanPort, SerialLines
+
+log = logging.getLogger("seafmu.hardware")
+
+THRUSTERS = "thrusters"  # watchdog source name of the CAN status frames
+LINE_CLASSES = ("checksum", "malformed", "invalid", "line_too_long")
+FRAME_CLASSES = ("unknown_id", "wrong_dlc", "decode", "unexpected", "bus_error", "tx_timeout")
+LOG_FIRST = 5  # one-line log messages per drop class before they are only counted
+
+
+class HardwareError(RuntimeError):
+    """The link cannot start (port, profile, vessel); one line saying what and where."""
+
+
+def _unit(channel: str) -> str:
+    if channel in ANGLE_NAMES or channel == "course":
+        return "rad"
+    if channel in ("p", "q", "r"):
+        return "rad/s"
+    if channel in ("u", "v", "w", "sog"):
+        return "m/s"
+    return "m"
+
+
+def sensor_mapping(profile: HardwareProfile, spec: VesselSpec) -> dict[str, list[str]]:
+    """Sensor name -> sentences of one sample: the profile's, else the defaults by channel."""
+    names = [s.name for s in spec.sensors]
+    given = profile.sensors or {}
+    unknown = sorted(set(given) - set(names))
+    if unknown:
+        raise HardwareError(
+            f"{profile.source or profile.name}: sensors: unknown sensor(s) {unknown} "
+            f"(vessel '{spec.name}' has {names})"
+        )
+    out: dict[str, list[str]] = {}
+    owner: dict[str, str] = {}
+    for s in spec.sensors:
+        try:
+            sentences = list(given[s.name]) if s.name in given else default_sentences(s)
+            check_mapping(s, sentences)
+        except ValueError as exc:
+            raise HardwareError(f"{profile.source or profile.name}: sensors: {exc}") from None
+        for name in sentences:
+            if name in owner:
+                raise HardwareError(
+                    f"{profile.source or profile.name}: sensors: {name} is mapped to both "
+                    f"'{owner[name]}' and '{s.name}'"
+                )
+            owner[name] = s.name
+        out[s.name] = sentences
+    return out
+
+
+def make_thruster_codec(profile: HardwareProfile, spec: VesselSpec) -> ThrusterCodec:
+    if spec.thrusters.count > 8 and profile.can.mapping == "seafmu":
+        raise HardwareError(
+            f"{profile.name}: the seafmu DBC defines 8 thrusters, vessel has {spec.thrusters.count}"
+        )
+    return make_codec(
+        profile.can.mapping,
+        spec.thrusters.n_max,
+        profile.dbc_path(),
+        profile.can.source_address,
+        profile.can.thruster_address,
+        profile.command_timeout,
+    )
+
+
+def watched_sources(profile: HardwareProfile, spec: VesselSpec) -> list[str]:
+    wd = profile.watchdog
+    names = [s.name for s in spec.sensors]
+    if wd.sources is not None:
+        bad = [s for s in wd.sources if s not in [*names, THRUSTERS]]
+        if bad:
+            raise HardwareError(
+                f"{profile.source or profile.name}: watchdog.sources: unknown {bad} "
+                f"(sensors {names} or '{THRUSTERS}')"
+            )
+        return list(wd.sources)
+    return [s.name for s in spec.sensors if 1.0 / s.rate_hz < wd.timeout / 2] + [THRUSTERS]
+
+
+class _Group:
+    """One sensor's decoding state: sentences still missing from the sample being assembled."""
+
+    def __init__(self, name: str, sentences: list[str], out_index: dict[str, int], count_index: int) -> None:
+        self.name = name
+        self.sentences = set(sentences)
+        self.out_index = out_index  # channel -> output slot
+        self.count_index = count_index
+        self.pending: dict[str, float] = {}
+        self.seen: set[str] = set()
+        self.last_rx = -math.inf  # loop time of the last complete sample
+        self.samples = 0
+
+
+class HardwareLink:
+    """A vessel behind serial NMEA and CAN, as a master unit with the Plant FMU's names."""
+
+    kind = "hardware"
+
+    def __init__(
+        self,
+        profile: str | Path | HardwareProfile,
+        name: str = "plant",
+        in_names: list[str] | None = None,
+        log_lines: list[str] | None = None,
+        pace: bool = True,
+        record_dir: str | Path | None = None,
+        vessel: str | None = None,
+    ) -> None:
+        self.profile = load_profile(profile)
+        p = self.profile
+        self.name = name
+        self.spec = load_vessel(vessel or p.vessel)
+        spec = self.spec
+        self.log_lines = log_lines if log_lines is not None else []
+        self.mapping = sensor_mapping(p, spec)
+        self.codec = make_thruster_codec(p, spec)
+        self.nmea = NmeaCodec(p.origin.lat, p.origin.lon, p.talkers)
+        self.watch = watched_sources(p, spec)
+        iface = self.interface(p, spec)
+        self.all_inputs = iface.input_names()
+        self.in_names = list(in_names) if in_names is not None else list(self.all_inputs)
+        bad = [n for n in self.in_names if n not in self.all_inputs]
+        if bad:
+            raise HardwareError(f"{name}: unknown input(s) {bad}; the link takes {self.all_inputs}")
+        self._in_idx = np.array([self.all_inputs.index(n) for n in self.in_names], dtype=int)
+        self.out_names = iface.output_names()
+        slot = {n: i for i, n in enumerate(self.out_names)}
+        self._slot = slot
+        m = spec.thrusters.count
+        self.n_max = np.asarray(spec.thrusters.n_max, dtype=float)
+        self._u = np.zeros(m)  # commands from the allocator
+        self._sent = np.zeros(m)  # commands as last sent
+        self._y = np.full(len(self.out_names), np.nan)
+        for k in ("watchdog_alarm", "lines_dropped", "frames_dropped", "commands_limited", "port_losses"):
+            self._y[slot[k]] = 0.0
+        for i in range(m):
+            self._y[slot[f"fault_{i + 1}"]] = 0.0
+        self.groups = {
+            s.name: _Group(
+                s.name,
+                self.mapping[s.name],
+                {c: slot[f"meas_{c}"] for c in s.channels},
+                slot[f"{s.name}_count"],
+            )
+            for s in spec.sensors
+        }
+        self._sentence_group = {sen: g for g in self.groups.values() for sen in g.sentences}
+        self.counters: Counter[str] = Counter()
+        self._logged: Counter[str] = Counter()
+        self.serial = SerialLines(
+            p.serial.url,
+            p.serial.baudrate,
+            p.serial.options,
+            p.reconnect_interval,
+            self.counters,
+            report=self._report,
+        )
+        self.can = CanPort(
+            p.can.interface,
+            p.can.channel,
+            p.can.bitrate,
+            p.can.options,
+            p.reconnect_interval,
+            self.counters,
+            report=self._report,
+        )
+        self.pace = pace
+        self.pacer = Pacer(1.0)  # step set at the first do_step
+        self._clock0: float | None = None
+        self._last_feedback = -math.inf
+        self._prev_poll = 0.0  # loop time of the previous poll: the earliest a new datum can have come
+        self._counter = 0
+        self.alarm = False
+        self.alarm_since = 0.0
+        self.alarms: list[tuple[float, float | None, str]] = []  # (start, end, reason)
+        self._ramp_start: float | None = None
+        self.record_dir = Path(record_dir) if record_dir else (Path(p.record.dir) if p.record.dir else None)
+        self.recorder: Recorder | None = None
+        self._t = 0.0
+
+    # -- interface -------------------------------------------------------------------------------
+    @classmethod
+    def interface(cls, profile: str | Path | HardwareProfile, spec: VesselSpec | None = None) -> Interface:
+        """The link's variables for a profile (no port is opened): what a scenario connects to."""
+        p = load_profile(profile)
+        spec = spec or load_vessel(p.vessel)
+        mapping = sensor_mapping(p, spec)
+        th = spec.thrusters
+        inputs = [
+            Signal(
+                f"n_cmd_{i + 1}",
+                "rev/s",
+                f"shaft speed command of thruster {i + 1} '{n}' (to CAN)",
+                min=-float(th.n_max[i]),
+                max=float(th.n_max[i]),
+            )
+            for i, n in enumerate(th.names)
+        ]
+        outputs = [
+            Signal(f"n_{i + 1}", "rev/s", f"measured shaft speed of thruster {i + 1} '{n}' (CAN feedback)")
+            for i, n in enumerate(th.names)
+        ]
+        for s in spec.sensors:
+            outputs += [
+                Signal(f"meas_{c}", _unit(c), f"{c} measured by {s.name} ({'+'.join(mapping[s.name])}), held")
+                for c in s.channels
+            ]
+            outputs.append(
+                Signal(f"{s.name}_count", "", f"samples received from {s.name}; +1 per complete sample")
+            )
+        carried = {c for sentences in mapping.values() for sen in sentences for c in SENTENCES[sen].extras}
+        outputs += [
+            Signal(c, _unit(c), f"{c} over ground from the position sensor's sentences")
+            for c in EXTRA_CHANNELS
+            if c in carried
+        ]
+        outputs += [
+            Signal(
+                f"fault_{i + 1}",
+                "",
+                f"fault bits of thruster {i + 1}: 1 over-current, "
+                "2 over-temperature, 4 command timeout, 8 hardware",
+            )
+            for i in range(th.count)
+        ]
+        outputs += [
+            Signal("watchdog_alarm", "", "1 while the watchdog holds the thrusters at zero"),
+            Signal("lines_dropped", "", "NMEA lines dropped (checksum, malformed, invalid, too long), total"),
+            Signal(
+                "frames_dropped",
+                "",
+                "CAN frames dropped (unknown id, wrong DLC, undecodable, bus errors), total",
+            ),
+            Signal("commands_limited", "", "thruster commands clamped to n_max or replaced (NaN), total"),
+            Signal("port_losses", "", "times the serial or CAN port was lost, total"),
+        ]
+        return Interface(inputs=inputs, outputs=outputs, parameters=[])
+
+    # -- the master's unit protocol ----------------------------------------------------------------
+    def open(self) -> None:
+        """Open the ports (and the recording); ``initialize`` does it if not done before."""
+        p = self.profile
+        if self.record_dir is not None and self.recorder is None:
+            self.recorder = Recorder(self.record_dir, p.record.can_format)
+            self.serial.on_bytes = self.recorder.serial_bytes
+            m = len(self._u)
+            self.recorder.start_signals(
+                [
+                    *[f"n_cmd_{i + 1}" for i in range(m)],
+                    *self.out_names,
+                    *[f"thrust_{i + 1}" for i in range(m)],
+                ],
+                f"seafmu hardware link recording, profile {p.name}, vessel {self.spec.name}",
+            )
+        for port in (self.serial, self.can):
+            if not port.is_open and not port.open():
+                self.terminate()
+                raise HardwareError(
+                    f"{self.name}: cannot open {port.what} port {port.name} (profile {p.name})"
+                )
+
+    def initialize(self, values: np.ndarray) -> np.ndarray:
+        """Open the ports and wait for a first complete sample of every sensor."""
+        p = self.profile
+        self.open()
+        self.set_inputs(values)
+        t_end = time.perf_counter() + p.startup_timeout
+        self._clock0 = time.perf_counter()
+        self._prev_poll = 0.0
+        while True:
+            self._poll(self._now())
+            missing = [g.name for g in self.groups.values() if g.samples == 0]
+            if not missing or time.perf_counter() > t_end:
+                break
+            time.sleep(0.005)
+        if missing:
+            self.terminate()
+            raise HardwareError(
+                f"{self.name}: no complete sample from {', '.join(missing)} within "
+                f"{p.startup_timeout:g} s on {p.serial.url} (profile {p.name})"
+            )
+        for g in self.groups.values():  # the first sample, as the plant's initial one
+            g.samples = 1
+            g.last_rx = 0.0
+            self._y[g.count_index] = 1.0
+        self._last_feedback = 0.0 if math.isinf(self._last_feedback) else self._last_feedback
+        self._clock0 = None  # the loop clock starts at the first do_step
+        self._update_status()
+        return self._y.copy()
+
+    def set_inputs(self, values: np.ndarray) -> None:
+        self._u[self._in_idx] = values
+
+    def get_outputs(self) -> np.ndarray:
+        return self._y
+
+    def do_step(self, t: float, h: float) -> None:
+        if self._clock0 is None:  # first step: loop time t is now
+            if self.profile.watchdog.timeout <= 2 * h:
+                raise HardwareError(
+                    f"{self.name}: watchdog.timeout {self.profile.watchdog.timeout:g} s must "
+                    f"exceed two steps ({2 * h:g} s): the link reads once per step"
+                )
+            self._clock0 = time.perf_counter() - t
+            self.pacer = Pacer(h)
+            self.pacer.start(self._clock0)
+            prio = self.profile.realtime_priority
+            if prio is not None and not Pacer.elevate(prio):
+                self._say(
+                    f"realtime_priority {prio}: not permitted here (needs CAP_SYS_NICE); normal scheduling"
+                )
+            for g in self.groups.values():
+                g.last_rx = t
+            self._last_feedback = t
+            self._prev_poll = t
+        self._send(self._commands(t))
+        if self.pace:
+            self.pacer.wait_for(t + h)
+        now = self._now()
+        self._poll(now)
+        self._watchdog(now, h)
+        self._t = t + h
+        self._update_status()
+        if self.recorder is not None:
+            n = self._y[: len(self._u)]
+            n = np.where(np.isfinite(n), n, self._sent)  # before the first feedback: the command
+            thrust = speed_to_thrust(self.spec.thrusters, n)
+            self.recorder.row(t + h, np.concatenate([self._sent, self._y, thrust]))
+
+    def set_value(self, var: str, value: Any) -> None:
+        if var not in self.all_inputs:
+            raise ValueError(f"{self.name}: '{var}' is not an input of the hardware link")
+        self._u[self.all_inputs.index(var)] = float(value)
+
+    def terminate(self) -> None:
+        """Stop the thrusters (zero, disabled), close the ports and the recording."""
+        if self.can.is_open:
+            self._send(np.zeros(len(self._u)), enable=False)
+        self.serial.close()
+        self.can.close()
+        if self.counters:
+            self._say(f"link totals: {dict(sorted(self.counters.items()))}")
+        if self.recorder is not None:
+            self.recorder.write_trial(self._trial_meta())
+            self.recorder.close()
+            self.recorder = None
+
+    # -- internals -----------------------------------------------------------------------------
+    def _now(self) -> float:
+        return time.perf_counter() - (self._clock0 or 0.0)
+
+    def _say(self, text: str) -> None:
+        line = f"{self.name}: {text}"
+        self.log_lines.append(line)
+        log.warning(line)
+        if self.recorder is not None:
+            self.recorder.line(line)
+
+    def _report(self, kind: str, text: str) -> None:
+        """Count an event of ``kind``; log the first LOG_FIRST of each kind in one line each."""
+        self.counters[kind] += 1
+        self._logged[kind] += 1
+        if self._logged[kind] <= LOG_FIRST:
+            more = f" (further {kind} only counted)" if self._logged[kind] == LOG_FIRST else ""
+            self._say(f"{text}{more}")
+
+    def _drop(self, kind: str, detail: str) -> None:
+        self._report(kind, f"dropped ({kind}): {detail}")
+
+    def _commands(self, t: float) -> np.ndarray:
+        """Allocator commands made safe: finite, within +-n_max, scaled by the watchdog."""
+        u = self._u.copy()
+        bad = ~np.isfinite(u)
+        if bad.any():
+            for i in np.flatnonzero(bad):
+                self._drop("command_nan", f"n_cmd_{i + 1} = {u[i]} at t = {t:.2f} s: sent 0")
+            u[bad] = 0.0
+        over = np.abs(u) > self.n_max
+        if over.any():
+            self.counters["command_clamped"] += int(over.sum())
+            u = np.clip(u, -self.n_max, self.n_max)
+        if self.alarm:
+            return np.zeros_like(u)
+        if self._ramp_start is not None:
+            ramp = self.profile.watchdog.resume_ramp
+            f = 1.0 if ramp <= 0 else min(1.0, (self._now() - self._ramp_start) / ramp)
+            if f >= 1.0:
+                self._ramp_start = None
+            u *= f
+        return u
+
+    def _send(self, u: np.ndarray, enable: bool | None = None) -> None:
+        en = (not self.alarm) if enable is None else enable
+        stamp = time.time()
+        for i, v in enumerate(u):
+            try:
+                msg = self.codec.command(i, float(v), en, self._counter)
+            except (EncodeError, ValueError, OverflowError) as exc:  # never expected after the clamp
+                self._drop("command_encode", f"thruster {i + 1}: {exc}")
+                continue
+            if self.can.send(msg) and self.recorder is not None:
+                self.recorder.frame(msg, rx=False, timestamp=stamp)
+        self._counter += 1
+        self._sent = np.asarray(u, dtype=float).copy()
+
+    def _poll(self, now: float) -> None:
+        since = self._prev_poll  # what arrives now came after the previous poll: stamp it so (safe side)
+        for raw in self.serial.read_lines():
+            self._line(raw, since)
+        for msg in self.can.recv_all():
+            if self.recorder is not None:
+                self.recorder.frame(msg, rx=True, timestamp=msg.timestamp or time.time())
+            self._frame(msg, since)
+        self._prev_poll = now
+
+    def _line(self, raw: bytes, now: float) -> None:
+        try:
+            text = raw.decode("ascii")
+        except UnicodeDecodeError:
+            self._drop("malformed", f"non-ASCII bytes {raw[:40]!r}")
+            return
+        try:
+            name, values = self.nmea.decode(text)
+        except NmeaError as exc:
+            if exc.kind == "unsupported":
+                self.counters["unsupported"] += 1  # valid, but nothing of ours (e.g. $GPGSV)
+            else:
+                self._drop(exc.kind, str(exc))
+            return
+        for c in EXTRA_CHANNELS:
+            if c in values and c in self._slot:
+                self._y[self._slot[c]] = values[c]
+        g = self._sentence_group.get(name)
+        if g is None:
+            self.counters["unmapped"] += 1
+            return
+        g.pending.update({c: v for c, v in values.items() if c in g.out_index})
+        g.seen.add(name)
+        if g.seen >= g.sentences:
+            for c, v in g.pending.items():
+                self._y[g.out_index[c]] = v
+            g.samples += 1
+            g.last_rx = now
+            self._y[g.count_index] = float(g.samples)
+            g.seen.clear()
+
+    def _frame(self, msg: Any, now: float) -> None:
+        try:
+            item = self.codec.decode(msg)
+        except CanFrameError as exc:
+            self._drop(exc.kind, str(exc))
+            return
+        if isinstance(item, Command):
+            return  # another controller's demand (NMEA 2000 broadcast), not feedback
+        fb: Feedback = item
+        if fb.speed is not None:
+            self._y[fb.index] = fb.speed  # n_i are the first outputs
+        if fb.faults is not None:
+            old = self._y[self._slot[f"fault_{fb.index + 1}"]]
+            if fb.faults != old:
+                self._say(f"thruster {fb.index + 1} fault bits {int(old)} -> {fb.faults} at t = {now:.2f} s")
+            self._y[self._slot[f"fault_{fb.index + 1}"]] = fb.faults
+        self._last_feedback = now
+
+    def _ages(self, now: float) -> dict[str, float]:
+        return {
+            s: now - (self._last_feedback if s == THRUSTERS else self.groups[s].last_rx) for s in self.watch
+        }
+
+    def _watchdog(self, now: float, h: float) -> None:
+        limit = self.profile.watchdog.timeout - h  # ages are upper bounds; the next poll is h away
+        ages = self._ages(now)
+        stale = {s: a for s, a in ages.items() if a > limit}
+        if not self.alarm and stale:
+            self.alarm = True
+            self.alarm_since = now
+            self._ramp_start = None
+            self._send(np.zeros(len(self._u)), enable=False)
+            why = ", ".join(f"{s} silent {a:.2f} s" for s, a in stale.items())
+            self.alarms.append((now, None, why))
+            self._say(f"WATCHDOG ALARM at t = {now:.2f} s: {why}; thrusters zeroed")
+        elif self.alarm and not stale:
+            fresh_since_alarm = all(a <= now - self.alarm_since for a in ages.values())
+            if fresh_since_alarm:
+                self.alarm = False
+                self._ramp_start = now
+                start, _, why = self.alarms[-1]
+                self.alarms[-1] = (start, now, why)
+                self._say(
+                    f"watchdog cleared at t = {now:.2f} s after {now - start:.2f} s; "
+                    f"commands ramp back over {self.profile.watchdog.resume_ramp:g} s"
+                )
+
+    def _update_status(self) -> None:
+        c = self.counters
+        y, s = self._y, self._slot
+        y[s["watchdog_alarm"]] = 1.0 if self.alarm else 0.0
+        y[s["lines_dropped"]] = sum(c[k] for k in LINE_CLASSES)
+        y[s["frames_dropped"]] = sum(c[k] for k in FRAME_CLASSES)
+        y[s["commands_limited"]] = c["command_nan"] + c["command_clamped"]
+        y[s["port_losses"]] = c["serial_lost"] + c["can_lost"]
+
+    def _trial_meta(self) -> dict[str, Any]:
+        spec = self.spec
+        columns = {c: f"meas_{c}" for c in spec.eta_names + spec.nu_names}
+        columns |= {f"thrust_{i + 1}": f"thrust_{i + 1}" for i in range(spec.thrusters.count)}
+        name = self.record_dir.name if self.record_dir else self.profile.name
+        return trial_meta(name, spec.name, self.profile.name, columns)
+
+    # -- reporting -------------------------------------------------------------------------------
+    def pacing_stats(self) -> PacingStats:
+        return self.pacer.stats()

@@ -1,0 +1,222 @@
+"""The hardware link as an FMI 2.0 co-simulation FMU, so another FMI tool can drive a real vessel.
+
+``build_link_fmu(profile, dest)`` packs a per-profile slave (unique module name) with the
+``hardware`` and ``components`` packages; its variables are the link's (``HardwareLink.interface``):
+inputs ``n_cmd_i``, outputs ``meas_*``, ``*_count``, ``n_i``, status. String parameters
+``serial_url``, ``can_interface``, ``can_channel`` and ``record_dir`` override the profile's ports
+without a rebuild. ``fmi2DoStep`` is paced to the wall clock (the vessel does not wait), so a host
+must call it no faster than real time can follow. The host's Python needs pyserial, python-can,
+cantools and pynmea2 (and numpy, pyyaml, pydantic), as for seafmu's other FMUs.
+"""
+
+from __future__ import annotations
+
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+from pythonfmu import Fmi2Causality, Fmi2Slave, Fmi2Variability, Real, String
+from pythonfmu.enums import Fmi2Initial, Fmi2Status
+
+from hardware.link import HardwareLink
+from hardware.profile import load_profile
+
+REPO = Path(__file__).resolve().parents[1]
+STRING_PARAMS = {
+    "serial_url": ("serial.url", "pyserial URL of the NMEA port (empty: the profile's)"),
+    "can_interface": ("can.interface", "python-can interface (empty: the profile's)"),
+    "can_channel": ("can.channel", "CAN channel (empty: the profile's)"),
+    "record_dir": ("record.dir", "folder for a recording of the run (empty: the profile's, or none)"),
+}
+
+# pythonfmu 0.7.0 drops one reference to the slave module's globals per instantiation; as in
+# fmus/_slave.py, each instance adds one back (and the generated script holds one more).
+_GLOBALS_REFS: list[dict[str, Any]] = []
+
+
+class LinkSlave(Fmi2Slave):
+    """The link behind FMI: the generated script sets PROFILE (a bundled profile name)."""
+
+    PROFILE: ClassVar[str] = ""
+    author = "seafmu"
+    license = "MIT"
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(**kwargs)
+        if self.resources:
+            _GLOBALS_REFS.append(vars(sys.modules[type(self).__module__]))
+        self._profile = load_profile(self.PROFILE)
+        iface = HardwareLink.interface(self._profile)
+        self.description = (
+            f"seafmu hardware link, profile '{self._profile.name}' (vessel {self._profile.vessel})"
+        )
+        self._in_names = iface.input_names()
+        self._u = np.zeros(len(iface.inputs))
+        self._y = np.full(len(iface.outputs), np.nan)
+        self._strings = {k: "" for k in STRING_PARAMS}
+        self._link: HardwareLink | None = None
+        for i, s in enumerate(iface.inputs):
+            self.register_variable(
+                Real(
+                    s.name,
+                    causality=Fmi2Causality.input,
+                    variability=Fmi2Variability.continuous,
+                    description=s.description,
+                    getter=lambda i=i: float(self._u[i]),
+                    setter=lambda v, i=i: self._u.__setitem__(i, v),
+                )
+            )
+        for i, s in enumerate(iface.outputs):
+            self.register_variable(
+                Real(
+                    s.name,
+                    causality=Fmi2Causality.output,
+                    variability=Fmi2Variability.continuous,
+                    initial=Fmi2Initial.calculated,
+                    description=s.description,
+                    getter=lambda i=i: float(self._y[i]),
+                )
+            )
+        for name, (_, desc) in STRING_PARAMS.items():
+            self.register_variable(
+                String(
+                    name,
+                    causality=Fmi2Causality.parameter,
+                    variability=Fmi2Variability.fixed,
+                    description=desc,
+                    getter=lambda n=name: self._strings[n],
+                    setter=lambda v, n=name: self._strings.__setitem__(n, v),
+                )
+            )
+
+    def exit_initialization_mode(self) -> bool:
+        over = {path: self._strings[k] for k, (path, _) in STRING_PARAMS.items() if self._strings[k]}
+        try:
+            profile = self._profile.with_overrides(**over) if over else self._profile
+            self._link = HardwareLink(profile, name=self.instance_name or "link")
+            self._y[:] = self._link.initialize(self._u.copy())
+        except Exception as exc:  # the host gets an FMI error with the reason, not a traceback
+            self.log(f"{self.instance_name}: {str(exc).splitlines()[0]}", Fmi2Status.error)
+            raise
+        return True
+
+    def do_step(self, current_time: float, step_size: float) -> bool:
+        link = self._link
+        if link is None:
+            self.log("do_step called before exit_initialization_mode", Fmi2Status.error)
+            return False
+        link.set_inputs(self._u)
+        link.do_step(current_time, step_size)
+        self._y[:] = link.get_outputs()
+        return True
+
+    def terminate(self) -> None:
+        if self._link is not None:
+            self._link.terminate()
+            self._link = None
+
+
+def _identifier(profile: str) -> str:
+    return "".join(part.capitalize() for part in profile.replace("-", "_").split("_")) + "Link"
+
+
+def build_link_fmu(profile: str | Path, dest: str | Path) -> Path:
+    """Build the link FMU for ``profile`` (bundled name or YAML path) into folder or file ``dest``."""
+    import pythonfmu
+
+    prof = load_profile(profile)
+    ident = _identifier(prof.name)
+    dest = Path(dest)
+    out = dest if dest.suffix == ".fmu" else dest / f"{ident}.fmu"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix="seafmu_link_build_") as tmp:
+        pkgs = Path(tmp) / "pkgs"
+        ignore = shutil.ignore_patterns("__pycache__", "*.pyc")
+        shutil.copytree(REPO / "hardware", pkgs / "hardware", ignore=ignore)
+        shutil.copytree(REPO / "components", pkgs / "components", ignore=ignore)
+        src = Path(prof.source) if prof.source else None
+        if src is not None and src.resolve().parent != (REPO / "hardware" / "profiles").resolve():
+            shutil.copy(src, pkgs / "hardware" / "profiles" / f"{prof.name}.yaml")  # a user's profile file
+        script = Path(tmp) / f"{prof.name}_link_fmu.py"
+        script.write_text(
+            f'"""Generated by seafmu: the hardware link FMU of profile {prof.name}."""\n\n'
+            "from hardware.link_fmu import LinkSlave\n\n\n"
+            f"class {ident}(LinkSlave):\n"
+            f'    PROFILE = "{prof.name}"\n\n\n'
+            "def _hold_globals() -> None:\n"
+            '    """Holds this module\'s globals: the reference the first instantiation drops."""\n'
+        )
+        built = pythonfmu.FmuBuilder.build_FMU(
+            script, dest=out.parent, project_files=[pkgs / "hardware", pkgs / "components"]
+        )
+    built = Path(built)
+    if built != out:
+        built.replace(out)
+    complete_link_model_description(out, prof.name)
+    return out
+
+
+def complete_link_model_description(fmu: Path, profile: str) -> None:
+    """Units, min/max and InitialUnknowns, as ``seafmu.build.complete_model_description`` does."""
+    import zipfile
+    from xml.etree import ElementTree as ET
+
+    import pythonfmu
+
+    iface = HardwareLink.interface(profile)
+    signals = {s.name: s for s in [*iface.inputs, *iface.outputs]}
+    with zipfile.ZipFile(fmu) as z:
+        members = {n: z.read(n) for n in z.namelist()}
+    root = ET.fromstring(members["modelDescription.xml"])
+    units = sorted({s.unit for s in signals.values() if s.unit})
+    if units:
+        ud = ET.Element("UnitDefinitions")
+        for u in units:
+            ET.SubElement(ud, "Unit", name=u)
+        pos = next(
+            (
+                i
+                for i, c in enumerate(root)
+                if c.tag
+                in (
+                    "TypeDefinitions",
+                    "LogCategories",
+                    "DefaultExperiment",
+                    "VendorAnnotations",
+                    "ModelVariables",
+                )
+            ),
+            len(root),
+        )
+        root.insert(pos, ud)
+    outputs = []
+    for index, sv in enumerate(root.find("ModelVariables"), start=1):
+        sig, real = signals.get(sv.get("name")), sv.find("Real")
+        if sig is not None and real is not None:
+            if sig.unit:
+                real.set("unit", sig.unit)
+            if sig.min is not None:
+                real.set("min", repr(float(sig.min)))
+            if sig.max is not None:
+                real.set("max", repr(float(sig.max)))
+        if sv.get("causality") == "output":
+            outputs.append(index)
+    structure = root.find("ModelStructure")
+    for child in list(structure):
+        structure.remove(child)
+    if outputs:
+        for tag in ("Outputs", "InitialUnknowns"):
+            el = ET.SubElement(structure, tag)
+            for i in outputs:
+                ET.SubElement(el, "Unknown", index=str(i))
+    root.set("generationTool", f"seafmu hardware link (pythonfmu {pythonfmu.__version__})")
+    ET.indent(root)
+    members["modelDescription.xml"] = ET.tostring(root, encoding="UTF-8", xml_declaration=True)
+    tmp = fmu.with_suffix(".tmp")
+    with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as z:
+        for name, data in members.items():
+            z.writestr(name, data)
+    tmp.replace(fmu)

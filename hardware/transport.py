@@ -1,0 +1,276 @@
+"""Serial (pyserial URLs) and CAN (python-can, any interface) ports that never block and never crash.
+
+Both poll without waiting: a control loop calls them once per step. A port that fails (unplugged
+adapter, closed pseudo-terminal, vanished device node) is closed, counted and reopened every
+``reconnect_interval`` seconds; everything in between is dropped, which is what a loop on a real
+vessel must do — the watchdog, not the transport, decides what the thrusters do meanwhile.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections import Counter
+from collections.abc import Callable
+from typing import Any
+
+import can
+import serial
+
+log = logging.getLogger("seafmu.hardware")
+
+MAX_LINE = 256  # bytes: NMEA allows 82; the Nortek DVL sentences run to about 110
+MAX_FRAMES_PER_POLL = 2000  # a flooding bus must not hold the loop
+
+
+class _Port:
+    """Open/close/reconnect bookkeeping shared by the serial and CAN ports."""
+
+    what = "port"
+
+    def __init__(
+        self,
+        name: str,
+        reconnect_interval: float,
+        counters: Counter[str],
+        report: Callable[[str, str], None] | None = None,
+    ) -> None:
+        self.name = name
+        self.reconnect_interval = reconnect_interval
+        self.counters = counters
+        self.report = report or self._log_report
+        self.is_open = False
+        self._next_try = 0.0
+        self._lost_logged = False
+
+    def _log_report(self, kind: str, text: str) -> None:
+        """Default: count and log; the link passes its own reporter (counts, rate-limited log)."""
+        self.counters[kind] += 1
+        log.warning(text)
+
+    def _open(self) -> None:
+        raise NotImplementedError
+
+    def _close(self) -> None:
+        raise NotImplementedError
+
+    def open(self) -> bool:
+        """Try to open now; False (logged once per outage) if it cannot."""
+        try:
+            self._open()
+        except Exception as exc:  # pyserial, python-can and the OS raise many kinds: all mean "not now"
+            self._next_try = time.monotonic() + self.reconnect_interval
+            if not self._lost_logged:
+                log.warning(
+                    "%s %s: cannot open (%s); retrying every %g s",
+                    self.what,
+                    self.name,
+                    str(exc).splitlines()[0] if str(exc) else type(exc).__name__,
+                    self.reconnect_interval,
+                )
+                self._lost_logged = True
+            return False
+        if self._lost_logged:
+            log.warning("%s %s: open again", self.what, self.name)
+        self._lost_logged = False
+        self.is_open = True
+        return True
+
+    def ensure_open(self) -> bool:
+        if not self.is_open and time.monotonic() >= self._next_try:
+            self.open()
+        return self.is_open
+
+    def lost(self, exc: BaseException) -> None:
+        why = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        cause = exc.__cause__ or exc.__context__
+        if cause is not None:
+            why += f": {type(cause).__name__} {str(cause).splitlines()[0] if str(cause) else ''}"
+        self.report(
+            f"{self.what}_lost", f"{self.what} {self.name} lost ({why}); its data is dropped until it reopens"
+        )
+        self._lost_logged = True
+        self.close()
+        self._next_try = time.monotonic() + self.reconnect_interval
+
+    def close(self) -> None:
+        if self.is_open:
+            try:
+                self._close()
+            except Exception:  # closing a port that already died raises too; nothing to save
+                pass
+        self.is_open = False
+
+
+class SerialLines(_Port):
+    """Lines from a pyserial URL (``/dev/ttyUSB0``, ``/dev/pts/N``, ``loop://``, ``socket://h:p``)."""
+
+    what = "serial"
+
+    def __init__(
+        self,
+        url: str,
+        baudrate: int = 115200,
+        options: dict[str, Any] | None = None,
+        reconnect_interval: float = 1.0,
+        counters: Counter[str] | None = None,
+        on_bytes: Callable[[bytes], None] | None = None,
+        report: Callable[[str, str], None] | None = None,
+    ) -> None:
+        super().__init__(url, reconnect_interval, counters if counters is not None else Counter(), report)
+        self.url = url
+        self.baudrate = baudrate
+        self.options = dict(options or {})
+        self.on_bytes = on_bytes
+        self._ser: serial.SerialBase | None = None
+        self._buf = bytearray()
+
+    def _open(self) -> None:
+        self._ser = serial.serial_for_url(
+            self.url, baudrate=self.baudrate, timeout=0, write_timeout=0.01, **self.options
+        )
+        self._buf.clear()
+
+    def _close(self) -> None:
+        if self._ser is not None:
+            self._ser.close()
+        self._ser = None
+
+    def read_lines(self) -> list[bytes]:
+        """Complete lines received since the last call (CR/LF stripped); never waits."""
+        if not self.ensure_open() or self._ser is None:
+            return []
+        try:
+            data = self._ser.read(self._ser.in_waiting or 1)
+        except (serial.SerialException, OSError, TypeError) as exc:  # TypeError: pyserial on a closed fd
+            self.lost(exc)
+            return []
+        if not data:
+            return []
+        if self.on_bytes is not None:
+            self.on_bytes(data)
+        self._buf += data
+        *lines, rest = self._buf.split(b"\n")
+        self._buf = bytearray(rest)
+        if len(self._buf) > MAX_LINE:  # garbage without line ends: drop it, keep the loop bounded
+            self.report(
+                "line_too_long", f"dropped (line_too_long): {len(self._buf)} bytes without a line end"
+            )
+            self._buf.clear()
+        out = []
+        for ln in lines:
+            ln = ln.strip(b"\r")
+            if len(ln) > MAX_LINE:
+                self.report("line_too_long", f"dropped (line_too_long): line of {len(ln)} bytes")
+            elif ln:
+                out.append(bytes(ln))
+        return out
+
+    def write(self, data: bytes) -> bool:
+        if not self.ensure_open() or self._ser is None:
+            return False
+        try:
+            self._ser.write(data)
+        except serial.SerialTimeoutException:  # nobody reads the other end: the bytes are lost
+            self.report("serial_write_timeout", f"serial {self.name}: write timed out, bytes dropped")
+            return False
+        except (serial.SerialException, OSError, TypeError) as exc:
+            self.lost(exc)
+            return False
+        return True
+
+
+class CanPort(_Port):
+    """A python-can bus named by interface and channel; recv and send never raise."""
+
+    what = "can"
+
+    def __init__(
+        self,
+        interface: str,
+        channel: str,
+        bitrate: int | None = None,
+        options: dict[str, Any] | None = None,
+        reconnect_interval: float = 1.0,
+        counters: Counter[str] | None = None,
+        report: Callable[[str, str], None] | None = None,
+    ) -> None:
+        super().__init__(
+            f"{interface}:{channel}",
+            reconnect_interval,
+            counters if counters is not None else Counter(),
+            report,
+        )
+        self.interface = interface
+        self.channel = channel
+        self.bitrate = bitrate
+        self.options = dict(options or {})
+        self.bus: can.BusABC | None = None
+
+    def _open(self) -> None:
+        kw = dict(self.options)
+        if self.bitrate is not None:
+            kw["bitrate"] = self.bitrate
+        self.bus = can.Bus(interface=self.interface, channel=self.channel, **kw)
+
+    def _close(self) -> None:
+        if self.bus is not None:
+            self.bus.shutdown()
+        self.bus = None
+
+    def _failed(self, exc: BaseException, what: str) -> bool:
+        """Count a bus error; True if the port itself is gone (then it is closed for reconnection)."""
+        cause = exc.__cause__ or exc.__context__
+        if isinstance(cause, serial.SerialTimeoutException):  # adapter not taking data right now
+            self.report("tx_timeout", f"dropped (tx_timeout): can {self.name} {what} timed out")
+            return False
+        if isinstance(exc, OSError | serial.SerialException) or isinstance(
+            cause, OSError | serial.SerialException
+        ):
+            self.lost(exc)
+            return True
+        why = str(exc).splitlines()[0] if str(exc) else ""
+        self.report("bus_error", f"dropped (bus_error): can {self.name} {what}: {type(exc).__name__} {why}")
+        if isinstance(exc, UnicodeDecodeError):
+            # python-can's slcan reader leaves non-ASCII bytes in its buffer when decoding fails, so
+            # every later read fails too; its flush() clears that buffer (and the pending input).
+            flush = getattr(self.bus, "flush", None)
+            if callable(flush):
+                try:
+                    flush()
+                except Exception as exc2:
+                    self.lost(exc2)
+                    return True
+        return False
+
+    def recv_all(self) -> list[can.Message]:
+        """Every frame waiting now (error frames counted and dropped); never waits."""
+        if not self.ensure_open() or self.bus is None:
+            return []
+        out: list[can.Message] = []
+        errors = 0
+        while len(out) < MAX_FRAMES_PER_POLL and errors < 20:
+            try:
+                msg = self.bus.recv(timeout=0)
+            except Exception as exc:  # garbage from an adapter surfaces as ValueError, IndexError, ...
+                errors += 1
+                if self._failed(exc, "receive"):
+                    break
+                continue
+            if msg is None:
+                break
+            if msg.is_error_frame:
+                self.report("bus_error", f"dropped (bus_error): error frame on can {self.name}")
+                continue
+            out.append(msg)
+        return out
+
+    def send(self, msg: can.Message) -> bool:
+        if not self.ensure_open() or self.bus is None:
+            return False
+        try:
+            self.bus.send(msg, timeout=0.01)
+        except Exception as exc:  # can.CanOperationError on a full queue or a dead adapter
+            self._failed(exc, "send")
+            return False
+        return True

@@ -1,0 +1,207 @@
+"""Shared fit result and statistics helpers for every identification method.
+
+Every fit (static table, decay, step, maneuver) reports the same quantities so that the diagnosis
+can compare candidate models on one scale; these helpers compute them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy import stats
+
+NONIDENTIFIABLE_CORR = 0.95
+
+
+@dataclass
+class FitResult:
+    """Outcome of one fit; the same shape for every trial kind and method."""
+
+    params: dict[str, float]
+    ci95: dict[str, tuple[float, float]]
+    correlation: np.ndarray
+    param_names: list[str]
+    nonidentifiable: list[tuple[str, str]]
+    nrmse_fit: float
+    nrmse_validation: float
+    aic: float
+    bic: float
+    whiteness: dict[str, Any]
+    warnings: list[str]
+    n_samples: int
+    method: str
+    extras: dict[str, Any] = field(default_factory=dict)
+
+    def fit_percent(self, validation: bool = False) -> float:
+        """Fit % = 100 (1 − NRMSE), the number the system-identification literature quotes."""
+        return 100.0 * (1.0 - (self.nrmse_validation if validation else self.nrmse_fit))
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready summary (numpy types converted)."""
+        return {
+            "params": {k: float(v) for k, v in self.params.items()},
+            "ci95": {k: [float(a), float(b)] for k, (a, b) in self.ci95.items()},
+            "correlation": np.asarray(self.correlation, dtype=float).tolist(),
+            "param_names": list(self.param_names),
+            "nonidentifiable": [list(p) for p in self.nonidentifiable],
+            "nrmse_fit": _f(self.nrmse_fit),
+            "nrmse_validation": _f(self.nrmse_validation),
+            "aic": _f(self.aic),
+            "bic": _f(self.bic),
+            "whiteness": {k: _jsonable(v) for k, v in self.whiteness.items()},
+            "warnings": list(self.warnings),
+            "n_samples": int(self.n_samples),
+            "method": self.method,
+        }
+
+
+def _f(x: float) -> float | None:
+    x = float(x)
+    return x if np.isfinite(x) else None
+
+
+def _jsonable(v: Any) -> Any:
+    if isinstance(v, (np.floating, float)):
+        return _f(v)
+    if isinstance(v, (np.integer,)):
+        return int(v)
+    if isinstance(v, np.bool_):
+        return bool(v)
+    return v
+
+
+def nrmse(y: np.ndarray, yhat: np.ndarray) -> float:
+    """‖y − ŷ‖ / ‖y − ȳ‖ over all elements (columns of a 2-D y are pooled after centring each).
+
+    Normalising by the signal's own spread makes runs and DOFs of different scale comparable;
+    0 is perfect, 1 is no better than the mean.
+    """
+    y = np.asarray(y, dtype=float)
+    yhat = np.asarray(yhat, dtype=float)
+    if not np.all(np.isfinite(yhat)):
+        return float("inf")  # a diverged simulation
+    with np.errstate(over="ignore", invalid="ignore"):
+        den = float(np.linalg.norm(y - (y.mean() if y.ndim == 1 else y.mean(axis=0))))
+        num = float(np.linalg.norm(y - yhat))
+    if not np.isfinite(num):
+        return float("inf")
+    if den == 0.0:
+        return float("inf") if num > 0 else 0.0
+    return float(num / den)
+
+
+def rmse(residual: np.ndarray, n_params: int = 0) -> float:
+    """sqrt(RSS / (n − p)); with p = 0 the plain RMSE. The tow-test figure uses n − p."""
+    r = np.asarray(residual, dtype=float).ravel()
+    dof = max(r.size - n_params, 1)
+    return float(np.sqrt(np.sum(r**2) / dof))
+
+
+def aic_bic(rss: float, n: int, k: int) -> tuple[float, float]:
+    """Gaussian AIC and BIC from the residual sum of squares: n ln(RSS/n) + 2k (resp. k ln n)."""
+    rss = max(float(rss), 1e-300)
+    base = n * np.log(rss / n)
+    return float(base + 2 * k), float(base + k * np.log(n))
+
+
+def covariance_from_jacobian(jac: np.ndarray, residual: np.ndarray) -> np.ndarray:
+    """Parameter covariance s² (JᵀJ)⁻¹ with s² = RSS/(n − p); pseudo-inverse when singular."""
+    jac = np.asarray(jac, dtype=float)
+    r = np.asarray(residual, dtype=float).ravel()
+    n, p = jac.shape
+    s2 = float(np.sum(r**2)) / max(n - p, 1)
+    # SVD-based pseudo-inverse: robust when the data cannot separate two parameters.
+    _, sv, vt = np.linalg.svd(jac, full_matrices=False)
+    tol = np.finfo(float).eps * max(jac.shape) * (sv[0] if sv.size else 0.0)
+    inv = np.where(sv > tol, 1.0 / np.where(sv > tol, sv, 1.0) ** 2, 0.0)
+    return s2 * (vt.T * inv) @ vt
+
+
+def confidence_intervals(
+    names: list[str], values: np.ndarray, cov: np.ndarray, n: int, level: float = 0.95
+) -> dict[str, tuple[float, float]]:
+    """Student-t intervals from the covariance diagonal (n − p degrees of freedom)."""
+    p = len(names)
+    tq = float(stats.t.ppf(0.5 + level / 2, max(n - p, 1)))
+    se = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    return {nm: (float(v - tq * s), float(v + tq * s)) for nm, v, s in zip(names, values, se, strict=True)}
+
+
+def correlation_matrix(cov: np.ndarray) -> np.ndarray:
+    """Correlation from covariance; zero-variance parameters get a unit diagonal."""
+    cov = np.asarray(cov, dtype=float)
+    sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        corr = cov / np.outer(sd, sd)
+    corr = np.where(np.isfinite(corr), corr, 0.0)
+    np.fill_diagonal(corr, 1.0)
+    return np.clip(corr, -1.0, 1.0)
+
+
+def nonidentifiable_pairs(
+    names: list[str], corr: np.ndarray, threshold: float = NONIDENTIFIABLE_CORR
+) -> list[tuple[str, str]]:
+    """Parameter pairs whose |correlation| exceeds the threshold: the data cannot separate them."""
+    out = []
+    for i in range(len(names)):
+        for j in range(i + 1, len(names)):
+            if abs(corr[i, j]) > threshold:
+                out.append((names[i], names[j]))
+    return out
+
+
+def whiteness_test(residual: np.ndarray, max_lag: int = 20) -> dict[str, Any]:
+    """Autocorrelation test of residuals over lags 1..k (k = min(max_lag, n/4)).
+
+    White residuals mean the model explains all structure; a coloured residual says a dynamic
+    effect is missing. Reports the fraction of lags whose ACF falls outside ±1.96/√n and the
+    Ljung–Box p-value; "white" is the Ljung–Box test at the 1 % level (p >= 0.01).
+    """
+    r = np.asarray(residual, dtype=float).ravel()
+    r = r[np.isfinite(r)]
+    n = r.size
+    k = int(min(max_lag, max(n // 4, 1)))
+    if n < 8:
+        return {"lags": 0, "fraction_outside": float("nan"), "ljung_box_p": float("nan"), "white": False}
+    r = r - r.mean()
+    den = float(np.dot(r, r))
+    if den == 0.0:
+        return {"lags": k, "fraction_outside": 0.0, "ljung_box_p": 1.0, "white": True}
+    acf = np.array([np.dot(r[:-lag], r[lag:]) / den for lag in range(1, k + 1)])
+    bound = 1.96 / np.sqrt(n)
+    frac = float(np.mean(np.abs(acf) > bound))
+    q = n * (n + 2) * float(np.sum(acf**2 / (n - np.arange(1, k + 1))))
+    p_lb = float(stats.chi2.sf(q, k))
+    return {"lags": k, "fraction_outside": frac, "ljung_box_p": p_lb, "white": bool(p_lb >= 0.01)}
+
+
+def fit_statistics(
+    names: list[str],
+    values: np.ndarray,
+    jac: np.ndarray,
+    residual: np.ndarray,
+) -> tuple[dict[str, tuple[float, float]], np.ndarray, list[tuple[str, str]]]:
+    """CIs, correlation and non-identifiable pairs from a Jacobian in one call."""
+    cov = covariance_from_jacobian(jac, residual)
+    n = np.asarray(residual).size
+    ci = confidence_intervals(names, np.asarray(values, dtype=float), cov, n)
+    corr = correlation_matrix(cov)
+    return ci, corr, nonidentifiable_pairs(names, corr)
+
+
+def correlation_warnings(names: list[str], corr: np.ndarray,
+                         threshold: float = NONIDENTIFIABLE_CORR) -> list[str]:
+    """One warning line per parameter pair the data cannot separate."""
+    out = []
+    for a, b in nonidentifiable_pairs(names, corr, threshold):
+        r = float(corr[names.index(a), names.index(b)])
+        out.append(f"{a} and {b} are correlated (r = {r:+.3f}): not separately identifiable from this data")
+    return out
+
+
+def ci_excludes_zero(ci: tuple[float, float]) -> bool:
+    """True when the 95 % interval lies entirely on one side of zero (parameter significant)."""
+    lo, hi = ci
+    return bool((lo > 0 and hi > 0) or (lo < 0 and hi < 0))

@@ -1,0 +1,202 @@
+"""Static tables: steady force vs speed (tow carriage, CFD) and thrust vs shaft speed (bollard pull).
+
+Models linear in their parameters are solved exactly by linear least squares; the few catalogue
+extensions that are not (current, deadband, saturation, asymmetry) by scipy's least_squares. Held-out
+error is leave-one-out: a table has no second run, and each point is a separate steady measurement.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from seafmu.identification.catalogue import CATALOGUE, input_scale
+from seafmu.identification.fitting import (
+    FitResult,
+    aic_bic,
+    correlation_warnings,
+    fit_statistics,
+    nrmse,
+    rmse,
+)
+from seafmu.identification.trial import Trial, TrialError
+
+_NONLINEAR = {"v_c", "n_0", "u_sat", "eta_rev"}
+_BOUNDS = {"f_c": (0.0, np.inf), "n_0": (0.0, np.inf), "u_sat": (1e-9, np.inf), "eta_rev": (-0.99, 10.0)}
+
+
+@dataclass
+class StaticModel:
+    table: str  # force_speed | thrust_rpm
+    law: str  # thrust law of a thrust table: linear | quadratic
+    free: list[str]
+    values: dict[str, float] = field(default_factory=dict)
+    effect: str | None = None
+
+    def predict(self, x: np.ndarray, theta: np.ndarray | None = None) -> np.ndarray:
+        v = dict(self.values)
+        if theta is not None:
+            v.update(zip(self.free, theta, strict=True))
+        if self.table == "force_speed":
+            w = x - v.get("v_c", 0.0)
+            return (v.get("d_L", 0.0) * w + v.get("d_Q", 0.0) * w * np.abs(w)
+                    + v.get("f_c", 0.0) * np.sign(x) + v.get("F_0", 0.0))
+        n = x
+        n0 = v.get("n_0", 0.0)
+        if n0 > 0:
+            n = np.sign(n) * np.maximum(np.abs(n) - n0, 0.0)
+        if "u_sat" in v:
+            n = np.clip(n, -v["u_sat"], v["u_sat"])
+        g = n if self.law == "linear" else n * np.abs(n)
+        gain = np.where(n < 0, 1.0 + v.get("eta_rev", 0.0), 1.0)
+        return v.get("k", 0.0) * g * gain + v.get("k_q", 0.0) * n * np.abs(n) + v.get("F_0", 0.0)
+
+    def design(self, x: np.ndarray) -> np.ndarray:
+        """Regressor matrix when the model is linear in its free parameters."""
+        cols = []
+        for p in self.free:
+            e = np.zeros(len(self.free))
+            e[self.free.index(p)] = 1.0
+            zero = StaticModel(self.table, self.law, self.free,
+                               {**self.values, **dict.fromkeys(self.free, 0.0)})
+            cols.append(zero.predict(x, e) - zero.predict(x, np.zeros(len(self.free))))
+        return np.column_stack(cols)
+
+    @property
+    def linear(self) -> bool:
+        return not (set(self.free) & _NONLINEAR) and "u_sat" not in self.values and not self.values.get("n_0")
+
+
+def table_data(trial: Trial) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """x, y and a group id per point; mirrored points share the group of their original."""
+    xs, ys, gs = [], [], []
+    gid = 0
+    for run in trial.runs:
+        x = np.asarray(run.u, dtype=float)
+        y = np.asarray(run.y, dtype=float)
+        for xi, yi in zip(x, y, strict=True):
+            xs.append(xi)
+            ys.append(yi)
+            gs.append(gid)
+            if trial.mirror and xi != 0:
+                xs.append(-xi)
+                ys.append(-yi)
+                gs.append(gid)
+            gid += 1
+    order = np.argsort(xs, kind="stable")
+    return np.array(xs)[order], np.array(ys)[order], np.array(gs)[order]
+
+
+def baseline_model(trial: Trial) -> StaticModel:
+    if trial.table == "force_speed":
+        free = {"linear": ["d_L"], "quadratic": ["d_Q"], "linear_quadratic": ["d_L", "d_Q"]}[trial.baseline]
+        return StaticModel("force_speed", "linear", free)
+    return StaticModel("thrust_rpm", trial.baseline, ["k"])
+
+
+def extend(model: StaticModel, effect: str, trial: Trial) -> StaticModel:
+    params = CATALOGUE[effect].params
+    m = StaticModel(model.table, model.law, [*model.free, *params], dict(model.values), effect)
+    if effect == "saturation":
+        m.values["u_sat"] = input_scale(trial)
+    return m
+
+
+def _solve(model: StaticModel, x: np.ndarray, y: np.ndarray, start: np.ndarray | None) -> tuple[
+        np.ndarray, np.ndarray]:
+    """Parameter vector and Jacobian (design matrix) at the solution."""
+    if model.linear:
+        A = model.design(x)
+        theta, *_ = np.linalg.lstsq(A, y, rcond=None)
+        return theta, A
+    lo = np.array([_BOUNDS.get(p, (-np.inf, np.inf))[0] for p in model.free])
+    hi = np.array([_BOUNDS.get(p, (-np.inf, np.inf))[1] for p in model.free])
+    best = None
+    starts = [start] if start is not None else []
+    starts += _starts(model, x, y)
+    for s0 in starts:
+        with np.errstate(invalid="ignore"):
+            inside_lo = np.where(np.isfinite(lo), lo + 1e-9 * (np.abs(lo) + 1), lo)
+            inside_hi = np.where(np.isfinite(hi), hi - 1e-9 * (np.abs(hi) + 1), hi)
+        s0 = np.clip(s0, inside_lo, inside_hi)
+        res = least_squares(lambda th: model.predict(x, th) - y, s0, bounds=(lo, hi), method="trf",
+                            x_scale="jac", xtol=1e-12, ftol=1e-12, gtol=1e-12)
+        if best is None or res.cost < best.cost:
+            best = res
+    assert best is not None
+    return best.x, best.jac
+
+
+def _starts(model: StaticModel, x: np.ndarray, y: np.ndarray) -> list[np.ndarray]:
+    """A few start points: linear part from least squares, nonlinear part on a small grid."""
+    lin = [p for p in model.free if p not in _NONLINEAR]
+    nl = [p for p in model.free if p in _NONLINEAR]
+    xmax = float(np.max(np.abs(x))) or 1.0
+    grids = {"v_c": [-0.2 * xmax, -0.05 * xmax, 0.05 * xmax, 0.2 * xmax], "n_0": [0.05 * xmax, 0.2 * xmax],
+             "u_sat": [0.5 * xmax, 0.8 * xmax], "eta_rev": [-0.3, 0.3]}
+    out = []
+    combos: list[dict[str, float]] = [{}]
+    for p in nl:
+        combos = [{**c, p: g} for c in combos for g in grids[p]]
+    for c in combos:
+        sub = StaticModel(model.table, model.law, lin, {**model.values, **c})
+        theta_lin, *_ = np.linalg.lstsq(sub.design(x), y, rcond=None)
+        d = dict(zip(lin, theta_lin, strict=True)) | c
+        out.append(np.array([d[p] for p in model.free]))
+    return out
+
+
+def fit_static(trial: Trial, model: StaticModel, start: dict[str, float] | None = None) -> FitResult:
+    """Fit a table by least squares; held-out error by leave-one-out over groups (mirror pairs)."""
+    x, y, groups = table_data(trial)
+    p = len(model.free)
+    if len(np.unique(groups)) <= p:
+        raise TrialError(f"{trial.name}: {len(np.unique(groups))} table points cannot fit {p} parameters")
+    s0 = np.array([start[q] for q in model.free]) if start and all(q in start for q in model.free) else None
+    theta, jac = _solve(model, x, y, s0)
+    yhat = model.predict(x, theta)
+    resid = y - yhat
+    ci, corr, nonid = fit_statistics(model.free, theta, jac, resid)
+
+    loo = np.empty_like(y)
+    for g in np.unique(groups):
+        keep = groups != g
+        th_g, _ = _solve(model, x[keep], y[keep], theta)
+        loo[~keep] = model.predict(x[~keep], th_g)
+    n = y.size
+    aic, bic = aic_bic(float(np.sum(resid**2)), n, p)
+    params = dict(zip(model.free, (float(t) for t in theta), strict=True))
+    result = FitResult(
+        params=params, ci95=ci, correlation=corr, param_names=list(model.free), nonidentifiable=nonid,
+        nrmse_fit=nrmse(y, yhat), nrmse_validation=nrmse(y, loo), aic=aic, bic=bic,
+        whiteness={"lags": 0, "fraction_outside": float("nan"), "white": None,
+                   "note": "table: points are independent steady measurements, whiteness not tested"},
+        warnings=sanity(params, trial, x) + correlation_warnings(model.free, corr), n_samples=n,
+        method="linear least squares" if model.linear else "nonlinear least squares (trf)",
+        extras={"rmse": rmse(resid, p), "rmse_plain": rmse(resid), "x": x, "y": y, "yhat": yhat,
+                "loo": loo, "residual": resid, "n_validation": int(n), "rss": float(np.sum(resid**2)),
+                "model": model, "effect": model.effect,
+                "validation": "leave-one-out" + (" (mirror pairs left out together)"
+                                                 if trial.mirror else "")},
+    )
+    return result
+
+
+def sanity(params: dict[str, float], trial: Trial, x: np.ndarray) -> list[str]:
+    """Physical-sanity warnings of a table fit (the sources hit negative linear damping three times)."""
+    w = []
+    dL, dQ = params.get("d_L"), params.get("d_Q")
+    if dL is not None and dL < 0:
+        msg = f"negative linear damping d_L = {dL:.4g}: unphysical (the drag pushes along the motion"
+        if dQ is not None and dQ > 0:
+            msg += f" below |v| = {-dL / dQ:.3g}"
+        w.append(msg + "); a simulation should use d_L = 0 or refit with d_L >= 0")
+    if dQ is not None and dQ < 0:
+        w.append(f"negative quadratic damping d_Q = {dQ:.4g}: unphysical, the model would accelerate itself")
+    if params.get("k", 1.0) <= 0:
+        w.append(f"non-positive thrust coefficient k = {params['k']:.4g}")
+    if params.get("f_c", 0.0) < 0:
+        w.append("negative Coulomb friction")
+    return w

@@ -1,0 +1,521 @@
+"""Measured trials: a small YAML that says what experiment a CSV holds, loaded into SI arrays.
+
+A trial names its kind (static table, 1st-order decay, step, 2nd-order decay, pendulum, maneuver),
+the degree of freedom, which CSV columns are inputs and outputs (with units), the known constants
+and the baseline model. Every mistake in the files is reported as one line naming file and field,
+because a fit on a misread column is worse than no fit at all.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from seafmu.units import UnitError
+
+
+class TrialError(ValueError):
+    """A trial that cannot be fitted; the message is one line naming the file and the field."""
+
+
+KINDS = ("static", "decay", "step", "decay2", "pendulum", "maneuver")
+TRANSLATIONAL = ("surge", "sway", "heave")
+ROTATIONAL = ("roll", "pitch", "yaw")
+DOFS = (*TRANSLATIONAL, *ROTATIONAL, "sway_yaw")
+# Index of each DOF in a vessel's nu vector, for writing identified values back.
+DOF_INDEX = {
+    3: {"surge": 0, "sway": 1, "yaw": 2},
+    6: {"surge": 0, "sway": 1, "heave": 2, "roll": 3, "pitch": 4, "yaw": 5},
+}
+
+# Minimum samples per kind: below this a fit has too few degrees of freedom to mean anything.
+MIN_SAMPLES = {"static": 4, "pendulum": 10, "decay": 20, "step": 20, "decay2": 20, "maneuver": 20}
+
+BASELINES = {
+    ("static", "force_speed"): ("linear_quadratic", ("linear", "quadratic", "linear_quadratic")),
+    ("static", "thrust_rpm"): ("linear", ("linear", "quadratic")),
+    ("decay", None): ("linear", ("linear", "quadratic", "linear_quadratic")),
+    ("step", None): ("linear", ("linear", "quadratic", "linear_quadratic")),
+    ("decay2", None): ("linear", ("linear", "linear_quadratic")),
+    ("pendulum", None): ("pendulum", ("pendulum",)),
+    ("maneuver", None): ("ls", ("ls", "output_error")),
+}
+
+CONSTANTS = {
+    "mass": "rigid-body mass or inertia of the DOF (kg or kg m^2); fixes the inertia of the model",
+    "added_mass": "known added mass/inertia added to 'mass' in the baseline (default 0)",
+    "thrust_coefficient": "known thrust gain k (N/rps, or N/rps^2 for a quadratic law); else fitted",
+    "stiffness": "known restoring coefficient c (N/m or N m/rad) of a 2nd-order decay; else fitted",
+    "mass_coupling": "sway-yaw inertia coupling m_26 (kg m) of a sway_yaw trial (default 0)",
+    "inertia": "yaw inertia I_z + N_rdot (kg m^2) of a sway_yaw trial",
+    "rod_length": "pendulum rod length r (m): gives K_Q from gamma",
+    "buoyancy": "pendulum model buoyancy B (N)",
+    "weight": "pendulum model weight M g (N); with buoyancy and rod_length gives the added mass",
+}
+
+# Units the shared table lacks (accelerations); name -> (SI unit, factor).
+_EXTRA_UNITS = {
+    "rad/s^2": ("rad/s^2", 1.0), "rad/s2": ("rad/s^2", 1.0),
+    "deg/s^2": ("rad/s^2", math.pi / 180), "deg/s2": ("rad/s^2", math.pi / 180),
+    "m/s^2": ("m/s^2", 1.0), "m/s2": ("m/s^2", 1.0),
+}
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class ColumnSpec(_Strict):
+    column: str = Field(description="header name in the CSV")
+    unit: str = Field(description="unit of the values in the file, e.g. m/s, kn, deg, rpm, N")
+
+
+class TrialModel(_Strict):
+    name: str
+    description: str = ""
+    provenance: str | None = Field(None, description="where the data come from; default: CSV '#' header")
+    kind: Literal["static", "decay", "step", "decay2", "pendulum", "maneuver"]
+    dof: Literal["surge", "sway", "heave", "roll", "pitch", "yaw", "sway_yaw"] | None = None
+    table: Literal["force_speed", "thrust_rpm"] | None = None
+    files: list[str] = Field(min_length=1)
+    validation_files: list[str] = Field(default_factory=list)
+    columns: dict[str, ColumnSpec | str] = Field(default_factory=dict)
+    constants: dict[str, float | str] = Field(default_factory=dict)
+    baseline: str | None = None
+    thrust_law: Literal["linear", "quadratic"] = "linear"
+    restoring: Literal["linear", "sin"] = "linear"
+    mirror: bool = Field(False, description="static: add (-x, -y) for every x != 0 (symmetric hull)")
+    validation_fraction: float = Field(0.3, gt=0.0, lt=0.9)
+    vessel: str | None = None
+
+
+@dataclass
+class Run:
+    """One measured record in SI units. y and u may have two columns (sway_yaw: v, r / Y, N)."""
+
+    name: str
+    y: np.ndarray
+    t: np.ndarray | None = None
+    u: np.ndarray | None = None
+    rate: np.ndarray | None = None
+    accel: np.ndarray | None = None
+
+    @property
+    def n(self) -> int:
+        return int(self.y.shape[0])
+
+
+@dataclass
+class Trial:
+    """A loaded, validated trial; everything in SI units (angles in rad, shaft speed in rev/s)."""
+
+    name: str
+    kind: str
+    runs: list[Run]
+    dof: str | None = None
+    table: str | None = None
+    validation_runs: list[Run] = field(default_factory=list)
+    constants: dict[str, float] = field(default_factory=dict)
+    baseline: str = ""
+    input_kind: str | None = None  # "rpm" (shaft speed command) or "force" (force/moment) for step trials
+    thrust_law: str = "linear"
+    restoring: str = "linear"
+    mirror: bool = False
+    validation_fraction: float = 0.3
+    vessel: str | None = None
+    provenance: str = ""
+    description: str = ""
+    source: Path | None = None
+    units: dict[str, str] = field(default_factory=dict)  # role -> unit in the file
+    columns: dict[str, str] = field(default_factory=dict)  # role -> CSV column (maneuver mapping)
+    files: list[Path] = field(default_factory=list)
+
+    @property
+    def rotational(self) -> bool:
+        return self.dof in ROTATIONAL or self.kind == "pendulum"
+
+    @property
+    def label(self) -> str:
+        return f"{self.name} ({self.kind}{', ' + self.dof if self.dof else ''})"
+
+
+def make_trial(
+    kind: str,
+    runs: list[Run],
+    *,
+    dof: str | None = None,
+    table: str | None = None,
+    baseline: str | None = None,
+    constants: dict[str, float] | None = None,
+    validation_runs: list[Run] | None = None,
+    input_kind: str | None = None,
+    thrust_law: str = "linear",
+    restoring: str = "linear",
+    mirror: bool = False,
+    validation_fraction: float = 0.3,
+    name: str = "synthetic",
+    provenance: str = "synthetic data generated in code",
+) -> Trial:
+    """A trial from arrays already in SI units (tests, benchmarks, notebooks)."""
+    if kind == "static" and table is None:
+        table = "force_speed"
+    key = (kind, table if kind == "static" else None)
+    default, allowed = BASELINES[key]
+    base = baseline or default
+    if base not in allowed:
+        raise TrialError(f"{name}: baseline '{base}' is not one of {', '.join(allowed)} for this kind")
+    if kind == "step" and input_kind is None:
+        input_kind = "force"
+    return Trial(
+        name=name, kind=kind, runs=runs, dof=dof, table=table, validation_runs=validation_runs or [],
+        constants=dict(constants or {}), baseline=base, input_kind=input_kind, thrust_law=thrust_law,
+        restoring=restoring, mirror=mirror, validation_fraction=validation_fraction, provenance=provenance,
+    )
+
+
+# -- loading -----------------------------------------------------------------------------------
+
+def _unit_si(unit: str) -> tuple[str, float]:
+    """SI unit and factor of a unit name, from the shared table or the acceleration additions."""
+    if unit in _EXTRA_UNITS:
+        return _EXTRA_UNITS[unit]
+    from seafmu.units import _UNITS
+
+    if unit not in _UNITS:
+        known = sorted({*_UNITS, *_EXTRA_UNITS})
+        raise UnitError(f"unknown unit '{unit}' (known: {', '.join(known)})")
+    return _UNITS[unit]
+
+
+def _quantity(raw: float | str) -> float:
+    """A constant: a bare SI number or '<number> <unit>' in any known unit, converted to SI."""
+    if isinstance(raw, int | float):
+        return float(raw)
+    from seafmu.units import _QUANTITY
+
+    m = _QUANTITY.match(raw)
+    if not m:
+        try:
+            return float(raw)
+        except ValueError:
+            raise UnitError(f"expected a number or '<number> <unit>', got {raw!r}") from None
+    return float(m.group(1)) * _unit_si(m.group(2))[1]
+
+
+def _expected_units(tm: TrialModel, table: str | None) -> dict[str, tuple[tuple[str, ...], str]]:
+    """Required/optional column roles and the SI units each may have: role -> (allowed SI, meaning)."""
+    rot = tm.dof in ROTATIONAL
+    vel = ("rad/s",) if rot else ("m/s",)
+    pos = ("rad",) if rot else ("m",)
+    force = ("N.m",) if rot else ("N",)
+    k = tm.kind
+    if k == "static":
+        if table == "thrust_rpm":
+            return {"input": (("rev/s",), "shaft speed"), "output": (("N", "N.m"), "thrust")}
+        return {"input": (vel, "speed"), "output": (force, "force")}
+    if tm.dof == "sway_yaw":
+        roles = {"time": (("s",), "time"), "output": (("m/s",), "sway velocity v"),
+                 "output2": (("rad/s",), "yaw rate r")}
+        if k == "step":
+            roles |= {"input": (("N",), "sway force Y"), "input2": (("N.m",), "yaw moment N")}
+        return roles
+    if k in ("decay", "step"):
+        roles = {"time": (("s",), "time"), "output": (vel, "velocity")}
+        if k == "step":
+            roles["input"] = (("rev/s", "N", "N.m"), "command (shaft speed or force)")
+        return roles
+    if k == "decay2":
+        return {"time": (("s",), "time"), "output": (pos, "displacement/angle")}
+    if k == "pendulum":
+        return {"time": (("s",), "time"), "output": (("rad",), "angle"),
+                "rate": (("rad/s",), "angular rate"), "accel": (("rad/s^2",), "angular acceleration")}
+    return {}
+
+
+_OPTIONAL = {"rate", "accel"}
+
+
+def _read_csv(path: Path) -> tuple[list[str], list[list[str]], list[int], list[str]]:
+    """Header, rows, the file line number of each row, and the leading '#' comment lines."""
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise TrialError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    comments: list[str] = []
+    header: list[str] | None = None
+    rows: list[list[str]] = []
+    lines: list[int] = []
+    for lineno, row in enumerate(csv.reader(text.splitlines()), start=1):
+        if not row or all(not c.strip() for c in row):
+            continue
+        if row[0].lstrip().startswith("#"):
+            if header is None:
+                comments.append(",".join(row).lstrip("# ").rstrip())
+            continue
+        if header is None:
+            header = [c.strip() for c in row]
+            continue
+        rows.append(row)
+        lines.append(lineno)
+    if header is None:
+        raise TrialError(f"{path}: no header row (expected column names after the '#' comment lines)")
+    return header, rows, lines, comments
+
+
+def _column(path: Path, header: list[str], rows: list[list[str]], lines: list[int], name: str,
+            role: str) -> np.ndarray:
+    if name not in header:
+        raise TrialError(f"{path}: column '{name}' ({role}) not found; the file has: {', '.join(header)}")
+    j = header.index(name)
+    out = np.empty(len(rows))
+    for i, row in enumerate(rows):
+        cell = row[j].strip() if j < len(row) else ""
+        try:
+            val = float(cell)
+        except ValueError:
+            raise TrialError(f"{path}: line {lines[i]}: column '{name}' is not a number ({cell!r})") from None
+        if not math.isfinite(val):
+            raise TrialError(f"{path}: line {lines[i]}: column '{name}' is {cell} (NaN/inf not allowed)")
+        out[i] = val
+    return out
+
+
+def _check_time(path: Path, t: np.ndarray, lines: list[int], name: str) -> None:
+    d = np.diff(t)
+    if d.size and np.any(d <= 0):
+        i = int(np.argmax(d <= 0))
+        what = "repeats" if d[i] == 0 else "goes backwards to"
+        raise TrialError(f"{path}: line {lines[i + 1]}: time column '{name}' {what} {t[i + 1]:g} s "
+                         f"(time must increase strictly)")
+
+
+def load_trial(path: str | Path) -> Trial:
+    """Load and validate a trial YAML and its CSV files (paths relative to the YAML)."""
+    path = Path(path)
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise TrialError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+    except OSError as exc:
+        raise TrialError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    if not isinstance(doc, dict):
+        raise TrialError(f"{path}: expected a mapping of trial fields at the top level")
+    try:
+        tm = TrialModel.model_validate(doc)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        loc = ".".join(str(p) for p in err["loc"]) or "(top level)"
+        msg = {"extra_forbidden": "unknown field", "missing": "required field is missing"}.get(
+            err["type"], err["msg"])
+        got = "" if err["type"] in ("missing", "extra_forbidden") else f" (got {err.get('input')!r})"
+        raise TrialError(f"{path}: {loc}: {msg}{got}") from None
+    return _resolve(tm, path)
+
+
+def _resolve(tm: TrialModel, path: Path) -> Trial:
+    def fail(where: str, msg: str) -> TrialError:
+        return TrialError(f"{path}: {where}: {msg}")
+
+    base_dir = path.parent
+    files = [base_dir / f for f in tm.files]
+    vfiles = [base_dir / f for f in tm.validation_files]
+    for i, f in enumerate(files + vfiles):
+        if not f.is_file():
+            where = f"files[{i}]" if i < len(files) else f"validation_files[{i - len(files)}]"
+            raise fail(where, f"no such file {f}")
+
+    if tm.kind == "maneuver":
+        cols = {}
+        for role, spec in tm.columns.items():
+            cols[role] = spec if isinstance(spec, str) else spec.column
+        if not tm.vessel:
+            raise fail("vessel", "a maneuver trial needs the vessel whose model is fitted")
+        base = tm.baseline or "ls"
+        if base not in BASELINES[("maneuver", None)][1]:
+            raise fail("baseline", f"'{base}' is not one of ls, output_error for a maneuver trial")
+        return Trial(name=tm.name, kind="maneuver", runs=[], dof=tm.dof, baseline=base, vessel=tm.vessel,
+                     provenance=tm.provenance or _header_provenance(files[0]), description=tm.description,
+                     source=path, columns=cols, files=files + vfiles,
+                     validation_fraction=tm.validation_fraction)
+
+    if tm.dof is None:
+        raise fail("dof", f"required for a {tm.kind} trial (one of {', '.join(DOFS)})")
+    if tm.kind == "pendulum" and tm.dof == "sway_yaw":
+        raise fail("dof", "a pendulum trial has one DOF")
+    if tm.dof == "sway_yaw" and tm.kind not in ("step", "decay"):
+        raise fail("dof", "sway_yaw (coupled sway-yaw) is a step or decay trial")
+    if tm.kind != "static" and tm.table is not None:
+        raise fail("table", "only a static trial has a table type")
+    if tm.mirror and tm.kind != "static":
+        raise fail("mirror", "only a static table can be mirrored")
+
+    # Table type: stated, or inferred from the input unit (rev/s -> thrust table).
+    table = tm.table
+    if tm.kind == "static" and table is None:
+        spec = tm.columns.get("input")
+        unit = spec.unit if isinstance(spec, ColumnSpec) else ""
+        try:
+            table = "thrust_rpm" if unit and _unit_si(unit)[0] == "rev/s" else "force_speed"
+        except UnitError:
+            table = "force_speed"
+
+    expected = _expected_units(tm, table)
+    units: dict[str, str] = {}
+    factors: dict[str, float] = {}
+    colnames: dict[str, str] = {}
+    for role, spec in tm.columns.items():
+        if role not in expected:
+            raise fail(f"columns.{role}", f"not a column role of a {tm.kind} trial "
+                                          f"(roles: {', '.join(expected)})")
+        if isinstance(spec, str):
+            raise fail(f"columns.{role}", "give {column: NAME, unit: UNIT}")
+        allowed, meaning = expected[role]
+        try:
+            si, factor = _unit_si(spec.unit)
+        except UnitError as exc:
+            raise fail(f"columns.{role}.unit", str(exc)) from None
+        if si not in allowed:
+            raise fail(f"columns.{role}.unit", f"'{spec.unit}' is {si}, but the {meaning} of a "
+                                               f"{tm.dof} {tm.kind} trial needs {' or '.join(allowed)}")
+        units[role], factors[role], colnames[role] = spec.unit, factor, spec.column
+    for role in expected:
+        if role not in tm.columns and role not in _OPTIONAL:
+            raise fail("columns", f"the {expected[role][1]} column ('{role}') is missing")
+
+    input_kind = None
+    if tm.kind == "step":
+        input_kind = "rpm" if _unit_si(units["input"])[0] == "rev/s" else "force"
+
+    constants: dict[str, float] = {}
+    for key, raw in tm.constants.items():
+        if key not in CONSTANTS:
+            raise fail(f"constants.{key}", f"unknown constant (known: {', '.join(CONSTANTS)})")
+        try:
+            val = _quantity(raw)
+        except UnitError as exc:
+            raise fail(f"constants.{key}", str(exc)) from None
+        if not math.isfinite(val) or (val <= 0 and key not in ("added_mass", "mass_coupling")):
+            raise fail(f"constants.{key}", f"must be a positive number, got {raw!r}")
+        constants[key] = val
+
+    key = (tm.kind, table if tm.kind == "static" else None)
+    default, allowed_b = BASELINES[key]
+    baseline = tm.baseline or default
+    if baseline not in allowed_b:
+        raise fail("baseline", f"'{baseline}' is not one of {', '.join(allowed_b)} for a {tm.kind} trial")
+
+    def read(f: Path) -> Run:
+        header, rows, lines, _ = _read_csv(f)
+        minimum = MIN_SAMPLES[tm.kind]
+        if len(rows) < minimum:
+            raise TrialError(f"{f}: {len(rows)} samples; a {tm.kind} trial needs at least {minimum}")
+        data = {role: _column(f, header, rows, lines, colnames[role], role) * factors[role]
+                for role in colnames}
+        if "time" in data:
+            _check_time(f, data["time"], lines, colnames["time"])
+        if tm.kind == "static" and np.ptp(data["input"]) == 0:
+            raise TrialError(f"{f}: column '{colnames['input']}' has one value only: nothing to fit")
+        y = data["output"] if "output2" not in data else np.column_stack([data["output"], data["output2"]])
+        u = data.get("input")
+        if "input2" in data:
+            u = np.column_stack([data["input"], data["input2"]])
+        return Run(name=f.stem, y=y, t=data.get("time"), u=u, rate=data.get("rate"), accel=data.get("accel"))
+
+    runs = [read(f) for f in files]
+    vruns = [read(f) for f in vfiles]
+    if tm.kind == "static" and vruns:
+        raise fail("validation_files", "a static table is validated by leave-one-out, not by files")
+    return Trial(
+        name=tm.name, kind=tm.kind, runs=runs, dof=tm.dof, table=table, validation_runs=vruns,
+        constants=constants, baseline=baseline, input_kind=input_kind, thrust_law=tm.thrust_law,
+        restoring=tm.restoring, mirror=tm.mirror, validation_fraction=tm.validation_fraction,
+        vessel=tm.vessel, provenance=tm.provenance or _header_provenance(files[0]),
+        description=tm.description, source=path, units=units, columns=colnames, files=files + vfiles,
+    )
+
+
+def _header_provenance(path: Path) -> str:
+    try:
+        return " ".join(_read_csv(path)[3][:3])
+    except TrialError:
+        return ""
+
+
+def csv_trial(path: str | Path, vessel: str) -> Trial:
+    """A bare CSV (e.g. a `seafmu run` results.csv) taken as a maneuver trial of this vessel."""
+    path = Path(path)
+    if not path.is_file():
+        raise TrialError(f"{path}: no such file")
+    return Trial(name=path.parent.name or path.stem, kind="maneuver", runs=[], baseline="ls", vessel=vessel,
+                 provenance=_header_provenance(path) or f"log {path}", source=path, files=[path])
+
+
+def write_trial(trial: Trial, folder: Path) -> Path:
+    """Write a trial (SI arrays) as CSV files plus the trial YAML; returns the YAML path.
+
+    Used to ship synthetic examples and by the tests that exercise the file format end to end.
+    """
+    folder.mkdir(parents=True, exist_ok=True)
+    rot = trial.dof in ROTATIONAL or trial.kind == "pendulum"
+    if trial.kind == "static":
+        rpm = trial.table == "thrust_rpm"
+        roles = {"input": ("input", "rev/s" if rpm else ("rad/s" if rot else "m/s")),
+                 "output": ("output", "N.m" if rot and not rpm else "N")}
+    elif trial.dof == "sway_yaw":
+        roles = {"time": ("t", "s"), "output": ("v", "m/s"), "output2": ("r", "rad/s")}
+        if trial.kind == "step":
+            roles |= {"input": ("Y", "N"), "input2": ("N", "N.m")}
+    else:
+        out_unit = ("rad" if rot else "m") if trial.kind in ("decay2", "pendulum") else (
+            "rad/s" if rot else "m/s")
+        roles = {"time": ("t", "s"), "output": ("y", out_unit)}
+        if trial.kind == "step":
+            roles["input"] = ("u", "rev/s" if trial.input_kind == "rpm" else ("N.m" if rot else "N"))
+    files = []
+    for i, run in enumerate([*trial.runs, *trial.validation_runs]):
+        cols: dict[str, np.ndarray] = {}
+        for role, (cname, _) in roles.items():
+            if role == "time":
+                cols[cname] = np.asarray(run.t)
+            elif role in ("output", "output2"):
+                y = np.asarray(run.y)
+                cols[cname] = y if y.ndim == 1 else y[:, 0 if role == "output" else 1]
+            else:
+                u = np.asarray(run.u)
+                cols[cname] = u if u.ndim == 1 else u[:, 0 if role == "input" else 1]
+        name = f"{trial.name}_{i + 1}_{run.name}.csv"
+        with open(folder / name, "w", newline="") as fh:
+            fh.write(f"# {trial.provenance}\n")
+            w = csv.writer(fh)
+            w.writerow(list(cols))
+            for row in np.column_stack(list(cols.values())):
+                w.writerow([f"{x:.9g}" for x in row])
+        files.append(name)
+    nfit = len(trial.runs)
+    doc: dict[str, Any] = {
+        "name": trial.name, "provenance": trial.provenance, "kind": trial.kind, "dof": trial.dof,
+        "files": files[:nfit],
+        "columns": {role: {"column": c, "unit": u} for role, (c, u) in roles.items()},
+        "baseline": trial.baseline,
+    }
+    if files[nfit:]:
+        doc["validation_files"] = files[nfit:]
+    if trial.kind == "static":
+        doc["table"] = trial.table
+        doc["mirror"] = trial.mirror
+    if trial.constants:
+        doc["constants"] = {k: float(v) for k, v in trial.constants.items()}
+    if trial.thrust_law != "linear":
+        doc["thrust_law"] = trial.thrust_law
+    if trial.restoring != "linear":
+        doc["restoring"] = trial.restoring
+    out = folder / f"{trial.name}.yaml"
+    out.write_text(yaml.safe_dump(doc, sort_keys=False))
+    return out

@@ -1,0 +1,356 @@
+"""The hardware link against a scripted vessel: decoding, limits, malformed input, port loss, watchdog,
+recording. Serial through a pseudo-terminal pair, CAN through python-can's in-process virtual bus
+(and SLCAN on a pty for adapter garbage); the test writes what a vessel would and reads the bus."""
+
+from __future__ import annotations
+
+import itertools
+import math
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import can
+import numpy as np
+import pytest
+import serial
+
+from hardware.canbus import Command
+from hardware.link import HardwareLink
+from hardware.nmea import NmeaCodec
+from hardware.profile import load_profile
+from hardware.ptybridge import NullModem
+from seafmu.identification.trial import load_trial
+
+VALUES = {
+    "north": 1.5,
+    "east": -2.25,
+    "down": 5.0,
+    "roll": 0.01,
+    "pitch": -0.02,
+    "yaw": 1.0,
+    "u": 0.1,
+    "v": -0.05,
+    "w": 0.0,
+    "p": 0.001,
+    "q": -0.002,
+    "r": 0.003,
+}
+SENSORS = {
+    "usbl": ["GGA"],
+    "depth": ["DPT"],
+    "ahrs": ["XDR_ATTITUDE", "HDT"],
+    "dvl": ["PNORBT7"],
+    "gyro": ["XDR_RATES"],
+}
+_chan = itertools.count()
+
+
+class Vessel:
+    """The far end: writes NMEA on the serial pty, reads commands and answers on the CAN bus."""
+
+    def __init__(self, serial_path: str, can_channel: str) -> None:
+        self.ser = serial.serial_for_url(serial_path, timeout=0)
+        self.bus = can.Bus(interface="virtual", channel=can_channel)
+        self.link_codec = None
+        self.nmea = NmeaCodec(63.44, 10.40)
+
+    def sample(
+        self, values: dict[str, float] | None = None, sensors: tuple[str, ...] = tuple(SENSORS)
+    ) -> float:
+        v = values or VALUES
+        lines = [self.nmea.encode(s, v) for name in sensors for s in SENSORS[name]]
+        self.ser.write("".join(ln + "\r\n" for ln in lines).encode())
+        self.ser.flush()
+        return time.time()
+
+    def raw(self, data: bytes) -> None:
+        self.ser.write(data)
+        self.ser.flush()
+
+    def frames(self) -> list[can.Message]:
+        out = []
+        while (m := self.bus.recv(timeout=0)) is not None:
+            out.append(m)
+        return out
+
+    def status(self, link: HardwareLink, speeds: list[float], faults: int = 0) -> None:
+        for i, n in enumerate(speeds):
+            for msg in link.codec.status(i, n, True, faults, 0):
+                self.bus.send(msg)
+
+    def close(self) -> None:
+        self.ser.close()
+        self.bus.shutdown()
+
+
+@pytest.fixture
+def rig(tmp_path: Path) -> Iterator[tuple[NullModem, str, Path]]:
+    link_path = tmp_path / "nmea"
+    nm = NullModem(link_b=link_path)
+    yield nm, f"hwtest{next(_chan)}", link_path
+    nm.close()
+
+
+def _link(
+    rig: tuple[NullModem, str, Path], record: Path | None = None, **over: object
+) -> tuple[HardwareLink, Vessel]:
+    nm, chan, link_path = rig
+    prof = load_profile("emulator_pty").with_overrides(
+        **{
+            "serial.url": str(link_path),
+            "can.interface": "virtual",
+            "can.channel": chan,
+            "can.options": {},
+            "startup_timeout": 2.0,
+            "reconnect_interval": 0.1,
+            **over,
+        }
+    )
+    vessel = Vessel(nm.a, chan)
+    link = HardwareLink(prof, record_dir=record)
+    return link, vessel
+
+
+def _start(link: HardwareLink, vessel: Vessel) -> np.ndarray:
+    link.open()  # opening a port flushes what came before, as on a real line
+    vessel.sample()
+    y = link.initialize(np.zeros(len(link.in_names))).copy()
+    vessel.frames()
+    return y
+
+
+def out(link: HardwareLink, name: str) -> float:
+    return float(link.get_outputs()[link.out_names.index(name)])
+
+
+def test_starts_on_the_first_samples_and_decodes_them(rig: tuple) -> None:
+    link, vessel = _link(rig)
+    try:
+        y = _start(link, vessel)
+        for c, v in VALUES.items():
+            assert y[link.out_names.index(f"meas_{c}")] == pytest.approx(v, abs=1e-4), c
+        assert all(y[link.out_names.index(f"{s}_count")] == 1.0 for s in SENSORS)
+        assert math.isnan(y[link.out_names.index("n_1")])  # no thruster feedback yet
+        # the true state of a real vessel is unknown: not an output
+        assert "north" not in link.out_names and "thrust_1" not in link.out_names
+        link.set_inputs(np.arange(7, dtype=float))
+        vessel.status(link, [0.5] * 7, faults=2)
+        vessel.sample({**VALUES, "down": 6.0}, ("depth",))
+        link.do_step(0.0, 0.05)
+        cmds = [link.codec.decode(m) for m in vessel.frames()]
+        assert [c.speed for c in cmds if isinstance(c, Command)] == pytest.approx(list(range(7)))
+        assert out(link, "meas_down") == pytest.approx(6.0) and out(link, "depth_count") == 2.0
+        assert out(link, "ahrs_count") == 1.0  # nothing new from the others
+        assert out(link, "n_3") == pytest.approx(0.5) and out(link, "fault_3") == 2.0
+    finally:
+        link.terminate()
+        vessel.close()
+
+
+def test_commands_are_clamped_and_nan_never_reaches_the_bus(rig: tuple) -> None:
+    link, vessel = _link(rig)
+    try:
+        _start(link, vessel)
+        link.set_inputs(np.array([np.nan, 1e6, -1e6, np.inf, 5.0, -np.inf, 19.99]))
+        vessel.sample()
+        link.do_step(0.0, 0.05)
+        sent = [link.codec.decode(m) for m in vessel.frames()]
+        assert [c.speed for c in sent] == pytest.approx([0.0, 20.0, -20.0, 0.0, 5.0, 0.0, 19.99])
+        assert all(c.enable for c in sent)
+        assert out(link, "commands_limited") == 5.0
+        assert sum("sent 0" in ln for ln in link.log_lines) == 3
+    finally:
+        link.terminate()
+        vessel.close()
+
+
+def test_malformed_input_is_counted_and_dropped_without_blocking(rig: tuple, tmp_path: Path) -> None:
+    link, vessel = _link(rig, record=tmp_path / "rec")
+    good = vessel.nmea.encode("DPT", {"down": 7.0})
+    bad_inputs = [
+        ("checksum", (good[:-2] + ("00" if good[-2:] != "00" else "11") + "\r\n").encode()),
+        ("checksum", (good.split("*")[0] + "\r\n").encode()),  # no checksum at all
+        ("checksum", (good[:9] + "\r\n").encode()),  # truncated: its checksum is gone
+        ("malformed", b"\x00\xff\xfe\x80garbage\r\n"),  # garbage, not even ASCII
+        ("malformed", b"$GPGGA,,,,,,,,*\r\n"),
+        ("line_too_long", b"$" + b"A" * 400),  # a stream without line ends
+    ]
+    try:
+        _start(link, vessel)
+        t = 0.0
+        h = 0.05
+        durations = []
+        for kind, data in bad_inputs:
+            before = link.counters[kind]
+            vessel.raw(b"\r\n" + data + b"\r\n")
+            vessel.sample()
+            vessel.status(link, [1.0] * 7)
+            t0 = time.perf_counter()
+            link.do_step(t, h)
+            durations.append(time.perf_counter() - t0)
+            t += h
+            assert link.counters[kind] == before + 1, kind
+            assert out(link, "watchdog_alarm") == 0.0
+        # CAN: unknown id, wrong DLC, undecodable, remote and error frames
+        cmd_id = link.codec.command(0, 0.0, True, 0).arbitration_id
+        status_id = link.codec.status(0, 0.0, True, 0, 0)[0].arbitration_id
+        for msg in (
+            can.Message(arbitration_id=0x555, data=b"\x01\x02", is_extended_id=False),
+            can.Message(arbitration_id=status_id, data=b"\x01\x02\x03", is_extended_id=False),
+            can.Message(arbitration_id=status_id, is_remote_frame=True, dlc=4, is_extended_id=False),
+            can.Message(arbitration_id=0, is_error_frame=True),
+        ):
+            vessel.bus.send(msg)
+        vessel.bus.send(
+            can.Message(arbitration_id=cmd_id, data=bytes(4), is_extended_id=False)
+        )  # a command: ignored
+        vessel.sample()
+        vessel.status(link, [1.0] * 7)
+        link.do_step(t, h)
+        assert link.counters["unknown_id"] == 1 and link.counters["wrong_dlc"] == 1
+        assert link.counters["unexpected"] == 1 and link.counters["bus_error"] == 1
+        assert out(link, "frames_dropped") == 4.0
+        assert out(link, "lines_dropped") == len(bad_inputs)
+        # good data kept flowing, and no step waited for anything
+        assert out(link, "depth_count") == len(bad_inputs) + 2
+        assert max(durations) < h + 0.02
+        assert sum("dropped (" in ln for ln in link.log_lines) == len(bad_inputs) + 4
+    finally:
+        link.terminate()
+        vessel.close()
+    # the recording has the raw traffic, bad lines included, and reads back as a maneuver trial
+    rec = tmp_path / "rec"
+    assert b"garbage" in (rec / "nmea.raw").read_bytes()
+    frames = list(can.LogReader(str(rec / "can.asc")))
+    assert any(f.arbitration_id == 0x555 for f in frames) and any(not f.is_rx for f in frames)
+    trial = load_trial(rec / "trial.yaml")  # seafmu.identification reads it as a maneuver trial
+    assert trial.kind == "maneuver" and trial.vessel == "minerva2"
+    assert trial.columns["north"] == "meas_north" and trial.columns["thrust_7"] == "thrust_7"
+    data = np.genfromtxt(rec / "signals.csv", delimiter=",", names=True, skip_header=1)
+    assert len(data) == len(bad_inputs) + 1 and np.all(np.diff(data["time"]) > 0)
+    assert data["watchdog_alarm"].max() == 0.0 and data["n_cmd_1"][0] == 0.0
+
+
+def test_slcan_adapter_garbage_is_counted_and_frames_keep_coming(tmp_path: Path) -> None:
+    """python-can's slcan reader raises on garbage lines (and sticks on non-ASCII): counted, recovered."""
+    with NullModem() as nm_ser, NullModem() as nm_can:
+        prof = load_profile("emulator_pty").with_overrides(
+            **{"serial.url": nm_ser.b, "can.channel": nm_can.b, "startup_timeout": 2.0}
+        )
+        ser = serial.serial_for_url(nm_ser.a, timeout=0)
+        adapter = serial.serial_for_url(nm_can.a, timeout=0)  # the adapter's side, written by hand
+        link = HardwareLink(prof)
+        nmea = NmeaCodec(63.44, 10.40)
+        try:
+            link.open()
+            ser.write(
+                "".join(nmea.encode(s, VALUES) + "\r\n" for ss in SENSORS.values() for s in ss).encode()
+            )
+            link.initialize(np.zeros(7))
+            good = link.codec.status(2, 3.0, True, 0, 0)[0]
+            frame = f"t{good.arbitration_id:03X}{good.dlc}{good.data.hex().upper()}\r".encode()
+            for junk in (b"tZZZ8\r", b"t1\r", b"\xff\xfe\r"):
+                adapter.write(junk + frame)
+                link.do_step(0.0, 0.05)
+            assert link.counters["bus_error"] >= 2
+            adapter.write(frame)
+            link.do_step(0.05, 0.05)
+            assert out(link, "n_3") == pytest.approx(3.0)
+        finally:
+            link.terminate()
+            ser.close()
+            adapter.close()
+
+
+def test_lost_serial_port_is_reopened_and_the_loop_never_stalls(rig: tuple) -> None:
+    nm, _, link_path = rig
+    link, vessel = _link(rig)
+    try:
+        _start(link, vessel)
+        h, t = 0.05, 0.0
+        nm.close()  # the USB adapter is unplugged
+        vessel.ser.close()
+        steps = []
+        for _ in range(4):
+            t0 = time.perf_counter()
+            link.do_step(t, h)
+            steps.append(time.perf_counter() - t0)
+            t += h
+        assert out(link, "port_losses") >= 1 and max(steps) < h + 0.02
+        nm2 = NullModem(link_b=link_path)  # plugged in again (same device name)
+        try:
+            vessel.ser = serial.serial_for_url(nm2.a, timeout=0)
+            for _ in range(6):
+                vessel.sample({**VALUES, "down": 8.0})
+                link.do_step(t, h)
+                t += h
+            assert out(link, "meas_down") == pytest.approx(8.0)
+            assert link.serial.is_open
+        finally:
+            nm2.close()
+    finally:
+        link.terminate()
+        vessel.close()
+
+
+def test_watchdog_zeroes_thrusters_within_the_timeout_and_recovers(rig: tuple) -> None:
+    link, vessel = _link(rig, **{"watchdog.resume_ramp": 0.3})
+    timeout = link.profile.watchdog.timeout
+    h, t = 0.05, 0.0
+    try:
+        _start(link, vessel)
+        link.set_inputs(np.full(7, 10.0))
+        for _ in range(10):  # data flowing: commands go out as given
+            last = vessel.sample()
+            vessel.status(link, [10.0] * 7)
+            link.do_step(t, h)
+            t += h
+        assert all(
+            c.speed == pytest.approx(10.0) and c.enable for c in map(link.codec.decode, vessel.frames())
+        )
+        zero_at = None
+        for _ in range(round(2 * timeout / h)):  # sensors fall silent (the CAN feedback goes on)
+            vessel.status(link, [10.0] * 7)
+            link.do_step(t, h)
+            t += h
+            for m in vessel.frames():
+                c = link.codec.decode(m)
+                if zero_at is None and not c.enable:
+                    assert c.speed == 0.0
+                    zero_at = m.timestamp
+        assert zero_at is not None and out(link, "watchdog_alarm") == 1.0
+        reaction = zero_at - last
+        assert timeout - 2 * h - 0.01 < reaction <= timeout, reaction
+        assert any("WATCHDOG ALARM" in ln for ln in link.log_lines)
+        speeds = []
+        for _ in range(12):  # data returns: the alarm clears, commands ramp back
+            vessel.sample()
+            vessel.status(link, [10.0] * 7)
+            link.do_step(t, h)
+            t += h
+            speeds.append(max(c.speed for c in map(link.codec.decode, vessel.frames())))
+        assert out(link, "watchdog_alarm") == 0.0
+        assert any("watchdog cleared" in ln for ln in link.log_lines)
+        rising = [s for s in speeds if s > 0]
+        assert 0 < rising[0] < 10.0 and rising[-1] == pytest.approx(10.0)
+        assert np.all(np.diff(rising) >= -1e-9)
+        assert len(link.alarms) == 1 and link.alarms[0][1] is not None
+        print(
+            f"watchdog reaction {1e3 * reaction:.1f} ms (timeout {1e3 * timeout:.0f} ms, "
+            f"step {1e3 * h:.0f} ms)"
+        )
+    finally:
+        link.terminate()
+        vessel.close()
+
+
+def test_startup_fails_in_one_line_without_data(rig: tuple) -> None:
+    link, vessel = _link(rig, startup_timeout=0.3)
+    try:
+        link.open()
+        vessel.sample(sensors=("depth", "ahrs"))
+        with pytest.raises(RuntimeError, match=r"no complete sample from usbl, dvl, gyro within 0.3 s"):
+            link.initialize(np.zeros(7))
+    finally:
+        vessel.close()
