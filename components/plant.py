@@ -1,4 +1,14 @@
-"""The plant block: vessel dynamics + thruster shafts + current + sensors behind the Block contract."""
+"""The plant block: vessel dynamics + thruster shafts + current + waves + sensors behind the Block contract.
+
+Environment and sensor faults (parameters appended after the thruster failures, outputs after
+``sog``): JONSWAP waves (``components/waves.py``) enter the vessel model as the external body
+force tau_ext, re-evaluated at the time midpoint of every RK4 sub-step (held over the sub-step,
+position of the sub-step's start); a slowly varying current (``components/environment.py``); a
+magnetometer calibration fault and position-fix outliers/dropout (``components/sensors.py``).
+Each random process has its own stream derived from ``seed`` (SeedSequence([seed, tag])), so
+switching one on changes nothing in the others, and with every new parameter at its default the
+run is bit-identical to the plant without them.
+"""
 
 from __future__ import annotations
 
@@ -9,15 +19,20 @@ from typing import Any
 
 import numpy as np
 
+from components.allocation import FORCE_UNIT
 from components.block import Block, Interface, Signal, full_params
-from components.environment import Current
+from components.environment import GaussMarkovCurrent
 from components.kinematics import J, wrap_angle
-from components.sensors import SensorSuite
+from components.sensors import SensorSuite, mag_heading_error
 from components.vessel_model import VesselModel
 from components.vessel_spec import ANGLE_NAMES, VesselSpec
+from components.waves import WaveField, WaveLoad
 
 _MIN_SUBSTEP = 1e-6
 FAIL_MODES = ("ok", "stuck at zero", "stuck at value")
+WAVE_STREAM = 0x3A7E  # entropy tags: SeedSequence([seed, tag]) per random process of the plant
+CURRENT_STREAM = 0xC0C0
+FAULT_PARAMS = ("usbl_outlier_rate", "usbl_outlier_size", "usbl_dropout_start", "usbl_dropout_length")
 
 
 def _units(vessel: VesselSpec) -> dict[str, str]:
@@ -54,6 +69,18 @@ class PlantBlock(Block):
             Signal("course", "rad", "true course over ground (heading when nearly at rest)"),
             Signal("sog", "m/s", "true speed over ground (horizontal)"),
         ]
+        # Environment and fault outputs (appended: the earlier outputs keep their order).
+        outputs.append(Signal("wave_elevation", "m", "wave elevation above the vessel's horizontal position"))
+        outputs += [Signal(f"tau_wave_{t}", FORCE_UNIT[t], f"first-order wave force {t} (body frame)")
+                    for t in vessel.tau_names]
+        outputs += [
+            Signal("current_north", "m/s", "current velocity, north (mean + slow variation)"),
+            Signal("current_east", "m/s", "current velocity, east (mean + slow variation)"),
+            Signal("mag_heading_error", "rad", "heading error of the magnetometer fault at the true "
+                   "heading, A sin(yaw)"),
+            Signal("pos_fix_outliers", "", "position-fix outliers injected so far"),
+            Signal("pos_fix_dropout", "", "1 while the position-fix sensor is in its dropout"),
+        ]
         params = [
             Signal("seed", "", "seed of the sensor noise (same seed, identical run)", min=0, start=0,
                    type="integer"),
@@ -78,6 +105,31 @@ class PlantBlock(Block):
             params.append(Signal(f"fail_value_{i + 1}", "rev/s", f"thruster {i + 1} '{name}': shaft speed "
                                  "it is stuck at when fail_mode = 2", min=-n_max, max=n_max, start=0.0,
                                  tunable=True))
+        # Environment and sensor faults (appended; see components/waves.py, environment.py, sensors.py).
+        params += [
+            Signal("wave_hs", "m", "significant wave height H_s of the JONSWAP sea (0 = no waves)",
+                   min=0.0, max=20.0, start=0.0, tunable=True),
+            Signal("wave_tp", "s", "peak period T_p", min=0.5, max=30.0, start=5.0),
+            Signal("wave_direction", "rad", "direction the waves travel TOWARDS, from north", start=0.0),
+            Signal("wave_gamma", "", "JONSWAP peak enhancement gamma (1 = Pierson-Moskowitz)",
+                   min=1.0, max=7.0, start=3.3),
+            Signal("wave_components", "", "number of regular wave components (random phases from seed)",
+                   min=1, max=2000, start=40, type="integer"),
+            Signal("current_variation", "m/s", "std of the slow Gauss-Markov variation of each NED "
+                   "current component (0 = constant current)", min=0.0, start=0.0),
+            Signal("current_time_constant", "s", "time constant of the current variation", min=1e-3,
+                   start=300.0),
+            Signal("mag_fault_amplitude", "rad", "magnetometer calibration fault: heading error "
+                   "A sin(yaw) (0 north/south, +A east, -A west); 0 = off", start=0.0, tunable=True),
+            Signal("usbl_outlier_rate", "", "probability that a position fix is an outlier", min=0.0,
+                   max=1.0, start=0.0, tunable=True),
+            Signal("usbl_outlier_size", "m", "horizontal displacement of an outlier fix (random "
+                   "direction)", min=0.0, start=5.0, tunable=True),
+            Signal("usbl_dropout_start", "s", "start of the position-fix dropout", min=0.0, start=0.0,
+                   tunable=True),
+            Signal("usbl_dropout_length", "s", "length of the position-fix dropout (0 = none)", min=0.0,
+                   start=0.0, tunable=True),
+        ]
         return Interface(inputs=inputs, outputs=outputs, parameters=params)
 
     def __init__(self, vessel: VesselSpec, params: dict[str, Any]) -> None:
@@ -92,7 +144,18 @@ class PlantBlock(Block):
         self._seed = int(seed)
         self._noise_scale = self._real("noise_scale", lo=0.0)
         self._substep = self._real("substep", lo=_MIN_SUBSTEP)
-        self._current = Current(self._real("current_speed", lo=0.0), self._real("current_direction"))
+        self._current = GaussMarkovCurrent(
+            self._real("current_speed", lo=0.0), self._real("current_direction"),
+            variation=self._real("current_variation", lo=0.0),
+            time_constant=self._real("current_time_constant", lo=1e-3),
+            rng=np.random.default_rng(np.random.SeedSequence([self._seed, CURRENT_STREAM])),
+        )
+        n_waves = self._integer("wave_components", lo=1)
+        field = WaveField(self._real("wave_hs", lo=0.0), self._real("wave_tp", lo=1e-3),
+                          self._real("wave_direction"), self._real("wave_gamma"), n_waves,
+                          np.random.default_rng(np.random.SeedSequence([self._seed, WAVE_STREAM])))
+        self._waves = WaveLoad(vessel, field)
+        self._t = 0.0
         d = vessel.dof
         x0 = [self._real(f"{n}_0") for n in vessel.eta_names + vessel.nu_names]
 
@@ -103,6 +166,8 @@ class PlantBlock(Block):
             self._x[i] = wrap_angle(self._x[i])
         self._sensors = SensorSuite(vessel.sensors, vessel.eta_names + vessel.nu_names, self._seed,
                                     self._noise_scale)
+        self._sensors.set_mag_fault(self._real("mag_fault_amplitude"))
+        self._set_pos_faults()
         self._sensors.initialise(self._x[: 2 * d])
         self._sensor_out: list[float] = []
         self._stuck: list[tuple[int, float]] = []  # (thruster index, speed command it is stuck at)
@@ -125,6 +190,23 @@ class PlantBlock(Block):
             raise ValueError(f"{name} must be >= {lo:g}, got {v!r}")
         return f
 
+    def _integer(self, name: str, lo: int) -> int:
+        """An integer parameter >= lo; ValueError names it."""
+        v = self.params[name]
+        if isinstance(v, bool) or not isinstance(v, numbers.Real) or not float(v).is_integer():
+            raise ValueError(f"{name} must be an integer, got {v!r}")
+        if v < lo:
+            raise ValueError(f"{name} must be >= {lo}, got {v}")
+        return int(v)
+
+    def _set_pos_faults(self) -> None:
+        rate = self._real("usbl_outlier_rate", lo=0.0)
+        if rate > 1.0:
+            raise ValueError(f"usbl_outlier_rate must be <= 1, got {self.params['usbl_outlier_rate']!r}")
+        self._sensors.set_pos_faults(rate, self._real("usbl_outlier_size", lo=0.0),
+                                     self._real("usbl_dropout_start", lo=0.0),
+                                     self._real("usbl_dropout_length", lo=0.0))
+
     def __deepcopy__(self, memo: dict) -> PlantBlock:
         """Copy the state; share the vessel spec and model, which never change after __init__."""
         new = object.__new__(type(self))
@@ -139,7 +221,21 @@ class PlantBlock(Block):
             self._sensor_out = self._sensors.output()
         x = self._x.tolist()
         thrust = self._model.thrust_list(x[2 * self.vessel.dof :])
-        return np.array(x + thrust + self._sensor_out + self._course_sog())
+        return np.array(x + thrust + self._sensor_out + self._course_sog() + self._env_out())
+
+    def _env_out(self) -> list[float]:
+        """wave_elevation, tau_wave_*, current_north/east, mag_heading_error, outliers, dropout."""
+        d = self.vessel.dof
+        x = self._x
+        field = self._waves.field
+        if field.hs > 0.0:
+            elev = field.elevation(self._t, float(x[0]), float(x[1]))
+            tau = self._waves.force(self._t, x[:d])
+        else:
+            elev, tau = 0.0, [0.0] * d
+        s = self._sensors
+        return [elev, *tau, *self._current.ned(), mag_heading_error(float(x[d - 1]), s.mag_fault),
+                s.outliers, float(s.in_dropout)]
 
     def _course_sog(self) -> list[float]:
         """Course and speed over ground: what a surface vessel's crab-angle compensation aims at."""
@@ -169,7 +265,19 @@ class PlantBlock(Block):
         vcn, vce = self._current.ned()
         for i, value in self._stuck:  # failed drives ignore their command
             ul[i] = value
-        self._x = model.rk4(self._x, model.clip(ul), h / steps, steps, vcn, vce)
+        cmd = model.clip(ul)
+        waves = self._waves
+        if waves.field.hs > 0.0:  # wave force re-evaluated per sub-step, at its time midpoint
+            dt = h / steps
+            x = self._x
+            d = self.vessel.dof
+            for j in range(steps):
+                x = model.rk4(x, cmd, dt, 1, vcn, vce, waves.force(t + (j + 0.5) * dt, x[:d]))
+            self._x = x
+        else:
+            self._x = model.rk4(self._x, cmd, h / steps, steps, vcn, vce)
+        self._current.step(h)
+        self._t = t + h
         changed = self._sensors.update(t, h, self._x[: 2 * self.vessel.dof])
         self._y = self._outputs(changed)
         return self._y.copy()
@@ -225,7 +333,33 @@ class PlantBlock(Block):
             else:
                 self._current.direction = f
             return
+        if name == "wave_hs":
+            self._check_tunable(name, value, lambda f: f >= 0.0, ">= 0")
+            self._waves.field.set_hs(float(value))
+            self.params[name] = value
+            return
+        if name == "mag_fault_amplitude":
+            self._check_tunable(name, value, lambda f: True, "finite")
+            self.params[name] = value
+            self._sensors.set_mag_fault(float(value))
+            return
+        if name in FAULT_PARAMS:
+            ok = (lambda f: 0.0 <= f <= 1.0) if name == "usbl_outlier_rate" else (lambda f: f >= 0.0)
+            self._check_tunable(name, value, ok, "within [0, 1]" if name == "usbl_outlier_rate" else ">= 0")
+            self.params[name] = value
+            self._set_pos_faults()
+            return
         super().set_parameter(name, value)
+
+    @staticmethod
+    def _check_tunable(name: str, value: Any, ok: Any, what: str) -> None:
+        """ValueError naming the parameter unless value is a finite number satisfying ``ok``."""
+        try:
+            f = float(value)
+        except (TypeError, ValueError):
+            raise ValueError(f"{name} must be a number, got {value!r}") from None
+        if not (math.isfinite(f) and ok(f)):
+            raise ValueError(f"{name} must be {what}, got {value!r}")
 
     # -- conveniences for tests and analysis ---------------------------------------------------
     @property
@@ -236,3 +370,7 @@ class PlantBlock(Block):
     @property
     def model(self) -> VesselModel:
         return self._model
+
+    @property
+    def waves(self) -> WaveLoad:
+        return self._waves

@@ -10,6 +10,17 @@ Noise: bias + white Gaussian noise, both scaled by ``noise_scale``. Each group d
 child stream of ``SeedSequence(seed)`` (``spawn``, keyed by the group's position in the vessel
 file), so the same seed reproduces a run exactly and appending a sensor leaves the others'
 noise unchanged. Noise is drawn even when ``noise_scale`` is 0, so the streams stay aligned.
+
+Faults (all off by default; they draw from a separate stream, so switching them on leaves the
+noise of every sample unchanged):
+- magnetometer calibration error on every ``yaw`` channel: measured heading = psi + A sin(psi)
+  (+ noise, bias). A one-cycle (hard-iron-like) deviation: 0 heading north or south, +A heading
+  east, -A heading west; what the thesis simulated. ``A`` = ``mag_fault_amplitude`` (rad).
+- position-fix sensor (the first group measuring north and east: USBL on Minerva 2, GNSS on the
+  AMV): outliers, each sample with probability ``outlier_rate`` displaced by ``outlier_size``
+  metres in a uniformly random horizontal direction (acoustic multipath); and a dropout, no
+  samples at the sample instants in [dropout_start, dropout_start + dropout_length) (the count
+  stops, the last value is held, as a receiver that lost the transponder).
 """
 
 from __future__ import annotations
@@ -22,6 +33,12 @@ from components.kinematics import wrap_angle
 from components.vessel_spec import ANGLE_NAMES, SensorSpec
 
 _EPS = 1e-6  # in units of sample periods: absorbs round-off of t + h at exact sample instants
+FAULT_STREAM = 0x5EAF  # entropy tag of the fault generator: SeedSequence([seed, FAULT_STREAM])
+
+
+def mag_heading_error(psi: float, amplitude: float) -> float:
+    """Heading error of the magnetometer calibration fault at true heading psi: A sin(psi)."""
+    return amplitude * math.sin(psi)
 
 
 class SensorGroup:
@@ -40,10 +57,32 @@ class SensorGroup:
         self.values = np.zeros(len(index))
         self.count = 0.0
         self.last_k: int | None = None  # index of the last sample instant served
+        ch = list(spec.channels)
+        # Fault hooks (SensorSuite configures them): heading channel, position-fix channels.
+        self.yaw_pos = ch.index("yaw") if "yaw" in ch else -1
+        self.yaw_state = int(self.index[self.yaw_pos]) if self.yaw_pos >= 0 else -1
+        self.mag_fault = 0.0
+        self.pos_fix = False
+        self.north_pos = ch.index("north") if "north" in ch else -1
+        self.east_pos = ch.index("east") if "east" in ch else -1
+        self.fault_rng: np.random.Generator | None = None
+        self.outlier_rate = 0.0
+        self.outlier_size = 0.0
+        self.dropout = (0.0, 0.0)  # (start, length), s
+        self.outliers = 0.0  # outliers injected so far
+        self.in_dropout = False
 
     def _take(self, state: np.ndarray) -> None:
         noise = self.std * self.rng.standard_normal(len(self.index))
         vals = state[self.index] + self.bias + noise
+        if self.mag_fault != 0.0 and self.yaw_pos >= 0:
+            vals[self.yaw_pos] += mag_heading_error(float(state[self.yaw_state]), self.mag_fault)
+        if self.pos_fix and self.fault_rng is not None:
+            x, ang = self.fault_rng.uniform(size=2).tolist()  # drawn for every fix: stream aligned
+            if x < self.outlier_rate:
+                vals[self.north_pos] += self.outlier_size * math.cos(2.0 * math.pi * ang)
+                vals[self.east_pos] += self.outlier_size * math.sin(2.0 * math.pi * ang)
+                self.outliers += 1.0
         if self.angle.any():
             # wrap only what left (-pi, pi]: wrap_angle's mod arithmetic perturbs in-range values
             out = self.angle & ((vals > math.pi) | (vals <= -math.pi))
@@ -63,6 +102,11 @@ class SensorGroup:
         k = math.floor((t + h) * self.rate + _EPS)
         if k > self.last_k:
             self.last_k = k
+            start, length = self.dropout
+            ts = k / self.rate
+            self.in_dropout = self.pos_fix and length > 0.0 and start - _EPS <= ts < start + length - _EPS
+            if self.in_dropout:
+                return False
             self._take(state)
             return True
         return False
@@ -81,6 +125,36 @@ class SensorSuite:
             for s, ss in zip(sensors, children, strict=True)
         ]
         self.size = sum(len(g.index) + 1 for g in self.groups)
+        self.mag_fault = 0.0
+        fault_rng = np.random.default_rng(np.random.SeedSequence([seed, FAULT_STREAM]))
+        self.pos_group: SensorGroup | None = None
+        for g in self.groups:
+            if g.north_pos >= 0 and g.east_pos >= 0:
+                g.pos_fix, g.fault_rng, self.pos_group = True, fault_rng, g
+                break
+
+    def set_mag_fault(self, amplitude: float) -> None:
+        """Magnetometer calibration error amplitude A (rad) on every heading channel."""
+        self.mag_fault = float(amplitude)
+        for g in self.groups:
+            g.mag_fault = float(amplitude)
+
+    def set_pos_faults(self, rate: float, size: float, dropout_start: float, dropout_length: float) -> None:
+        """Outliers and dropout of the position-fix sensor (no effect if the vessel has none)."""
+        g = self.pos_group
+        if g is not None:
+            g.outlier_rate, g.outlier_size = float(rate), float(size)
+            g.dropout = (float(dropout_start), float(dropout_length))
+
+    @property
+    def outliers(self) -> float:
+        """Position-fix outliers injected so far."""
+        return self.pos_group.outliers if self.pos_group is not None else 0.0
+
+    @property
+    def in_dropout(self) -> bool:
+        """True while the position-fix sensor is in its dropout (set at each sample instant)."""
+        return self.pos_group is not None and self.pos_group.in_dropout
 
     @staticmethod
     def output_names(sensors: list[SensorSpec]) -> list[str]:

@@ -86,16 +86,19 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     r.set_defaults(fn=_cmd_run)
     from hardware.cli import register as register_hardware
+    from seafmu.identification.cli import register as register_identification
 
+    register_identification(sub)
     register_hardware(sub)
     args = parser.parse_args(argv)
     from components.vessel_spec import VesselFileError
+    from seafmu.identification.trial import TrialError
     from seafmu.master import SimulationError
     from seafmu.scenario import ScenarioError
 
     try:
         return args.fn(args)
-    except (ScenarioError, SimulationError, VesselFileError, OSError) as exc:
+    except (ScenarioError, SimulationError, VesselFileError, TrialError, OSError) as exc:
         print(f"seafmu: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

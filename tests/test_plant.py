@@ -25,6 +25,18 @@ def minerva() -> VesselSpec:
     return load_vessel("minerva2")
 
 
+# Appended by the environment/sensor-fault work (issue 5): new names only, after the old ones.
+ENV_PARAMS = [
+    "wave_hs", "wave_tp", "wave_direction", "wave_gamma", "wave_components", "current_variation",
+    "current_time_constant", "mag_fault_amplitude", "usbl_outlier_rate", "usbl_outlier_size",
+    "usbl_dropout_start", "usbl_dropout_length",
+]  # fmt: skip
+ENV_OUTPUTS_3DOF = [
+    "wave_elevation", "tau_wave_X", "tau_wave_Y", "tau_wave_N", "current_north", "current_east",
+    "mag_heading_error", "pos_fix_outliers", "pos_fix_dropout",
+]  # fmt: skip
+
+
 def run(block: PlantBlock, inputs: np.ndarray, h: float, t0: float = 0.0) -> np.ndarray:
     """Step once per row of ``inputs``; outputs after each step."""
     out = []
@@ -40,11 +52,12 @@ def test_interface_amv(amv: VesselSpec) -> None:
     assert iface.input_names() == ["n_cmd_1", "n_cmd_2"]
     assert iface.inputs[0].min == -2.3 and iface.inputs[0].max == 2.3 and iface.inputs[0].unit == "rev/s"
     assert "screw_port" in iface.inputs[0].description
-    assert iface.output_names() == [
+    assert iface.output_names()[:22] == [
         "north", "east", "yaw", "u", "v", "r", "n_1", "n_2", "thrust_1", "thrust_2",
         "meas_north", "meas_east", "gnss_count", "meas_yaw", "compass_count", "meas_r", "gyro_count",
         "meas_u", "meas_v", "speed_count", "course", "sog",
     ]  # fmt: skip
+    assert iface.output_names()[22:] == ENV_OUTPUTS_3DOF  # environment/fault outputs appended
     units = {s.name: s.unit for s in iface.outputs}
     assert units["north"] == "m" and units["yaw"] == "rad" and units["u"] == "m/s" and units["r"] == "rad/s"
     assert units["meas_yaw"] == "rad" and units["thrust_1"] == "N" and units["n_2"] == "rev/s"
@@ -53,7 +66,7 @@ def test_interface_amv(amv: VesselSpec) -> None:
         "seed", "noise_scale", "current_speed", "current_direction",
         "north_0", "east_0", "yaw_0", "u_0", "v_0", "r_0", "substep",
         "fail_mode_1", "fail_mode_2", "fail_value_1", "fail_value_2",
-    ]  # fmt: skip
+    ] + ENV_PARAMS  # fmt: skip
     assert params["seed"].type == "integer" and params["seed"].start == 0
     assert params["noise_scale"].start == 1.0 and params["noise_scale"].min == 0
     assert params["current_speed"].tunable and params["current_direction"].tunable
@@ -67,11 +80,12 @@ def test_interface_minerva(minerva: VesselSpec) -> None:
     assert iface.input_names() == [f"n_cmd_{i}" for i in range(1, 8)]
     assert names[:12] == ["north", "east", "down", "roll", "pitch", "yaw", "u", "v", "w", "p", "q", "r"]
     assert names[12:26] == [f"n_{i}" for i in range(1, 8)] + [f"thrust_{i}" for i in range(1, 8)]
-    assert names[26:] == [
+    assert names[26:45] == [
         "meas_north", "meas_east", "usbl_count", "meas_down", "depth_count",
         "meas_roll", "meas_pitch", "meas_yaw", "ahrs_count", "meas_u", "meas_v", "meas_w", "dvl_count",
         "meas_p", "meas_q", "meas_r", "gyro_count", "course", "sog",
     ]  # fmt: skip
+    assert names[45:] == ["wave_elevation"] + [f"tau_wave_{t}" for t in "XYZKMN"] + ENV_OUTPUTS_3DOF[4:]
     block = PlantBlock(minerva, {})
     assert block.output().shape == (len(names),)
 
@@ -178,9 +192,9 @@ def test_adding_a_sensor_leaves_the_others_noise_unchanged(amv: VesselSpec) -> N
     inputs = np.tile([1.0, 0.8], (100, 1))
     a = run(PlantBlock(amv, {"seed": 9}), inputs, 0.1)
     b = run(PlantBlock(bigger, {"seed": 9}), inputs, 0.1)
-    k = a.shape[1] - 2  # course and sog come after the sensors
+    k = PlantBlock.interface(amv).output_names().index("course")  # course, sog, env. after the sensors
     np.testing.assert_array_equal(a[:, :k], b[:, :k])
-    np.testing.assert_array_equal(a[:, k:], b[:, -2:])
+    np.testing.assert_array_equal(a[:, k:], b[:, k - a.shape[1] :])  # what follows the sensors
 
 
 # -- sensors --------------------------------------------------------------------------------------
@@ -305,8 +319,10 @@ def test_course_and_speed_over_ground(amv: VesselSpec) -> None:
 def test_failure_parameters_are_appended_and_tunable(minerva: VesselSpec) -> None:
     params = PlantBlock.interface(minerva).parameters
     names = [p.name for p in params]
-    assert names[-14:] == [f"fail_mode_{i}" for i in range(1, 8)] + [f"fail_value_{i}" for i in range(1, 8)]
-    assert names.index("substep") == len(names) - 15  # everything before them keeps its place
+    i0 = names.index("fail_mode_1")
+    assert names[i0 : i0 + 14] == [f"fail_mode_{i}" for i in range(1, 8)] + [f"fail_value_{i}" for i in range(1, 8)]
+    assert names.index("substep") == i0 - 1  # everything before them keeps its place
+    assert names[i0 + 14 :] == ENV_PARAMS  # only the environment/fault parameters come after them
     spec = {p.name: p for p in params}
     mode = spec["fail_mode_3"]
     assert mode.type == "integer" and mode.tunable and mode.min == 0 and mode.max == 2

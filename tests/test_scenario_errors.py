@@ -194,5 +194,5 @@ def test_hardware_plant_in_a_scenario(tmp_path: Path) -> None:
     # a real vessel reports no true state: checks on it fail by name, before the run
     with pytest.raises(ScenarioError, match="FMU 'plant' has no variable 'north'"):
         load_scenario(_write(tmp_path, _mutate({"fmus/plant": {"hardware": "emulator_pty"}})))
-    with pytest.raises(ScenarioError, match="fmus.plant.hardware: hardware profile 'nowhere'"):
+    with pytest.raises(ScenarioError, match=r"fmus\.plant\.hardware: hardware profile 'nowhere'"):
         load_scenario(_write(tmp_path, _mutate({"fmus/plant": {"hardware": "nowhere"}})))

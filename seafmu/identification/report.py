@@ -241,7 +241,8 @@ def _header(trial: Trial, title: str) -> list[str]:
     return [f"# {title}: {trial.name}", "",
             f"- kind: {trial.kind}, DOF: {trial.dof}, baseline model: {trial.baseline}",
             f"- data: {', '.join(str(f) for f in trial.files) or '(in memory)'}",
-            f"- provenance: {trial.provenance}", ""]
+            f"- provenance: {trial.provenance}",
+            *([f"- description: {' '.join(trial.description.split())}"] if trial.description else []), ""]
 
 
 def write_identify_report(ident: Identification, out: Path) -> Path:
