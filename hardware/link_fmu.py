@@ -160,63 +160,9 @@ def build_link_fmu(profile: str | Path, dest: str | Path) -> Path:
 
 
 def complete_link_model_description(fmu: Path, profile: str) -> None:
-    """Units, min/max and InitialUnknowns, as ``seafmu.build.complete_model_description`` does."""
-    import zipfile
-    from xml.etree import ElementTree as ET
-
-    import pythonfmu
+    """Units, min/max and InitialUnknowns, exactly as for seafmu's own FMUs."""
+    from seafmu.build import complete_model_description
 
     iface = HardwareLink.interface(profile)
     signals = {s.name: s for s in [*iface.inputs, *iface.outputs]}
-    with zipfile.ZipFile(fmu) as z:
-        members = {n: z.read(n) for n in z.namelist()}
-    root = ET.fromstring(members["modelDescription.xml"])
-    units = sorted({s.unit for s in signals.values() if s.unit})
-    if units:
-        ud = ET.Element("UnitDefinitions")
-        for u in units:
-            ET.SubElement(ud, "Unit", name=u)
-        pos = next(
-            (
-                i
-                for i, c in enumerate(root)
-                if c.tag
-                in (
-                    "TypeDefinitions",
-                    "LogCategories",
-                    "DefaultExperiment",
-                    "VendorAnnotations",
-                    "ModelVariables",
-                )
-            ),
-            len(root),
-        )
-        root.insert(pos, ud)
-    outputs = []
-    for index, sv in enumerate(root.find("ModelVariables"), start=1):
-        sig, real = signals.get(sv.get("name")), sv.find("Real")
-        if sig is not None and real is not None:
-            if sig.unit:
-                real.set("unit", sig.unit)
-            if sig.min is not None:
-                real.set("min", repr(float(sig.min)))
-            if sig.max is not None:
-                real.set("max", repr(float(sig.max)))
-        if sv.get("causality") == "output":
-            outputs.append(index)
-    structure = root.find("ModelStructure")
-    for child in list(structure):
-        structure.remove(child)
-    if outputs:
-        for tag in ("Outputs", "InitialUnknowns"):
-            el = ET.SubElement(structure, tag)
-            for i in outputs:
-                ET.SubElement(el, "Unknown", index=str(i))
-    root.set("generationTool", f"seafmu hardware link (pythonfmu {pythonfmu.__version__})")
-    ET.indent(root)
-    members["modelDescription.xml"] = ET.tostring(root, encoding="UTF-8", xml_declaration=True)
-    tmp = fmu.with_suffix(".tmp")
-    with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as z:
-        for name, data in members.items():
-            z.writestr(name, data)
-    tmp.replace(fmu)
+    complete_model_description(fmu, signals, tool="seafmu hardware link")

@@ -88,7 +88,7 @@ def build_fmu(vessel: str, kind: str, force: bool = False) -> BuildResult:
         built = pythonfmu.FmuBuilder.build_FMU(
             script, dest=out, project_files=project, canGetAndSetFMUstate=True, canSerializeFMUstate=True
         )
-    complete_model_description(Path(built))
+    complete_model_description(Path(built), _signals_by_name(vessel, kind))
     stamp.write_text(digest)
     return BuildResult(out, rebuilt=True)
 
@@ -107,14 +107,14 @@ def _signals_by_name(vessel: str, kind: str) -> dict:
     return {s.name: s for s in [*iface.inputs, *iface.outputs, *iface.parameters]}
 
 
-def complete_model_description(fmu: Path) -> None:
-    """Add units, min/max and InitialUnknowns to pythonfmu's modelDescription, in place."""
+def complete_model_description(fmu: Path, signals: dict, tool: str = "seafmu build") -> None:
+    """Add units, min/max and InitialUnknowns to pythonfmu's modelDescription, in place.
+
+    ``signals`` maps variable names to ``components.block.Signal`` (unit, min, max).
+    """
     with zipfile.ZipFile(fmu) as z:
         members = {n: z.read(n) for n in z.namelist()}
     root = ET.fromstring(members["modelDescription.xml"])
-    ident = root.find("CoSimulation").get("modelIdentifier")
-    vessel, kind = _split_identifier(ident)
-    signals = _signals_by_name(vessel, kind)
 
     units = sorted({s.unit for s in signals.values() if s.unit})
     if units:
@@ -149,7 +149,7 @@ def complete_model_description(fmu: Path) -> None:
         iu = ET.SubElement(structure, "InitialUnknowns")
         for i in initial_unknowns:
             ET.SubElement(iu, "Unknown", index=str(i))
-    root.set("generationTool", f"seafmu build (pythonfmu {pythonfmu.__version__})")
+    root.set("generationTool", f"{tool} (pythonfmu {pythonfmu.__version__})")
     ET.indent(root)
     members["modelDescription.xml"] = ET.tostring(root, encoding="UTF-8", xml_declaration=True)
     tmp = fmu.with_suffix(".tmp")
@@ -164,14 +164,6 @@ def _first_index(root: ET.Element, tags: tuple[str, ...]) -> int:
         if child.tag in tags:
             return i
     return len(root)
-
-
-def _split_identifier(ident: str) -> tuple[str, str]:
-    for v in VESSELS:
-        for k in KINDS:
-            if model_identifier(v, k) == ident:
-                return v, k
-    raise ValueError(f"unknown seafmu model identifier {ident!r}")
 
 
 def manifest() -> dict[str, str]:

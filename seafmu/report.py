@@ -105,12 +105,51 @@ def plot_thrusters(result: RunResult, path: Path) -> bool:
     return True
 
 
+def allocation_table(result: RunResult) -> list[str]:
+    """Per allocator: saturation onset, worst error, the thesis's indicator and energy."""
+    insts = sorted({k.split(".", 1)[0] for k in result.signals if k.endswith(".alloc_error")})
+    if not insts:
+        return []
+    rows = ["| allocator | first time with error > 1e-6 [s] | max ‖Bu − τ‖ | "
+            "Σ negative front thrust (indicator) | mean Σu² |", "|---|---|---|---|---|"]
+    t = result.time
+    for i in insts:
+        err = result.signals[f"{i}.alloc_error"]
+        over = np.flatnonzero(err > 1e-6)
+        onset = f"{t[over[0]]:g}" if over.size else "never"
+        ind = result.signals.get(f"{i}.front_negative_thrust")
+        en = result.signals.get(f"{i}.thrust_energy")
+        rows.append(f"| {i} | {onset} | {np.nanmax(err):.4g} | "
+                    f"{'' if ind is None else f'{np.nansum(ind):.4g}'} | "
+                    f"{'' if en is None else f'{np.nanmean(en):.4g}'} |")
+    return rows
+
+
+def plot_allocation(result: RunResult, path: Path) -> bool:
+    keys = sorted(k for k in result.signals if k.endswith(".alloc_error"))
+    if not keys:
+        return False
+    fig, ax = plt.subplots(figsize=(9, 4))
+    for k in keys:
+        ax.plot(result.time, result.signals[k], lw=1.2, label=k.split(".", 1)[0])
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("allocation error ‖Bu − τ‖")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title(f"{result.scenario.name}: allocation error")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return True
+
+
 def write_report(result: RunResult, checks: list[CheckResult], summary: dict[str, Any], out: Path) -> Path:
     sc = result.scenario
     figures = []
     for fn, name, title in ((plot_trajectory, "trajectory.png", "Trajectory"),
                             (plot_states, "states.png", "States vs references"),
-                            (plot_thrusters, "thrusters.png", "Thruster use")):
+                            (plot_thrusters, "thrusters.png", "Thruster use"),
+                            (plot_allocation, "allocation.png", "Allocation error")):
         if fn(result, out / name):
             figures.append((title, name))
     lines = [
@@ -140,6 +179,9 @@ def write_report(result: RunResult, checks: list[CheckResult], summary: dict[str
             lines.append(f"| {c.name} | {c.value:.4g} | {c.bound} | {'PASS' if c.passed else 'FAIL'} |")
     else:
         lines.append("No checks in this scenario.")
+    table = allocation_table(result)
+    if table:
+        lines += ["", "## Allocation", "", *table]
     if result.log:
         lines += ["", "## FMU messages", ""] + [f"- {m}" for m in result.log]
     lines += ["", "## Figures", ""]
