@@ -102,6 +102,9 @@ class _Port:
         self.is_open = False
 
 
+READ_CHUNK = 65536  # bytes per poll: far above what a 20 Hz loop sees at any baud rate
+
+
 class SerialLines(_Port):
     """Lines from a pyserial URL (``/dev/ttyUSB0``, ``/dev/pts/N``, ``loop://``, ``socket://h:p``)."""
 
@@ -141,7 +144,16 @@ class SerialLines(_Port):
         if not self.ensure_open() or self._ser is None:
             return []
         try:
-            data = self._ser.read(self._ser.in_waiting or 1)
+            # timeout=0: read() returns at once with what is there. Loop: pyserial's socket://
+            # handler reports at most 1 waiting byte, and one read per poll starved networked NMEA
+            # muxes. Small reads also keep what arrived before a disconnect (a big socket read
+            # that meets EOF raises and loses the bytes it had).
+            data = b""
+            while len(data) < READ_CHUNK:
+                chunk = self._ser.read(self._ser.in_waiting or 1)
+                if not chunk:
+                    break
+                data += chunk
         except (serial.SerialException, OSError, TypeError) as exc:  # TypeError: pyserial on a closed fd
             self.lost(exc)
             return []

@@ -329,7 +329,15 @@ def run(scenario: Scenario, mode: Mode = "fmu", progress: bool = True,
 
                     path = build_fmu(scenario.vessel, inst.kind or "").path
                 units.append(FmuUnit(inst, Path(path), in_names, log))
-        result = _loop(scenario, units, mode, progress, log)
+        hw_errors: tuple[type[Exception], ...] = ()
+        if any(i.hardware for i in scenario.instances):
+            from hardware.link import HardwareError
+
+            hw_errors = (HardwareError,)
+        try:
+            result = _loop(scenario, units, mode, progress, log)
+        except hw_errors as exc:  # a port that cannot open, a vessel that never answers
+            raise SimulationError(" ".join(str(exc).split())) from None
         links = [u for u in units if hasattr(u, "pacing_stats")]
         if links:
             stats = links[0].pacing_stats()  # type: ignore[attr-defined]

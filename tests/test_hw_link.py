@@ -354,3 +354,27 @@ def test_startup_fails_in_one_line_without_data(rig: tuple) -> None:
             link.initialize(np.zeros(7))
     finally:
         vessel.close()
+
+
+def test_run_with_an_unreachable_vessel_ends_in_one_line(tmp_path: Path) -> None:
+    """`seafmu run` against a profile whose port does not exist: exit 2, one error line, no traceback."""
+    import subprocess
+    import sys
+
+    from hardware.profile import profile_path
+
+    prof = tmp_path / "bad.yaml"
+    text = profile_path("emulator_pty").read_text()
+    prof.write_text(text.replace("/tmp/seafmu-emulator/nmea", "/dev/ttyNOPE0"))
+    sc = tmp_path / "s.yaml"
+    sc.write_text(
+        "name: badport\nvessel: minerva2\nduration: 2\nstep: 0.05\n"
+        f"fmus:\n  plant: {{hardware: {prof}}}\n  observer: {{kind: observer}}\n"
+        "  controller: {kind: controller}\n  allocator: {kind: allocator}\n"
+    )
+    cmd = [sys.executable, "-m", "seafmu.cli", "run", str(sc), "-q", "-o", str(tmp_path / "o")]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2
+    assert "Traceback" not in proc.stderr
+    errors = [ln for ln in proc.stderr.splitlines() if ln.startswith("seafmu: error:")]
+    assert len(errors) == 1 and "/dev/ttyNOPE0" in errors[0]
