@@ -19,6 +19,11 @@ def _cmd_build(args: argparse.Namespace) -> int:
     vessels = tuple(args.vessel) if args.vessel else VESSELS
     for r in build_all(vessels, force=args.force):
         print(f"{'built  ' if r.rebuilt else 'current'} {r.path}")
+    for profile in args.link or []:
+        from hardware.link_fmu import build_link_fmu
+        from seafmu.build import build_dir
+
+        print(f"built   {build_link_fmu(profile, build_dir())}")
     return 0
 
 
@@ -75,6 +80,8 @@ def main(argv: list[str] | None = None) -> int:
     b = sub.add_parser("build", help="build the FMUs (only those whose sources changed)")
     b.add_argument("--vessel", action="append", help="only this vessel (repeatable)")
     b.add_argument("--force", action="store_true", help="rebuild even if up to date")
+    b.add_argument("--link", action="append", metavar="PROFILE",
+                   help="also build the hardware link of this profile as an FMU (for other FMI tools)")
     b.set_defaults(fn=_cmd_build)
     c = sub.add_parser("check", help="validate a scenario without running it")
     c.add_argument("scenario")
