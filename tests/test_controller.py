@@ -13,6 +13,7 @@ from components.block import full_params
 from components.controller import ControllerBlock, restoring_stiffness
 from components.kinematics import J, rzyx, wrap_angle
 from components.reference_model import ReferenceModel, _exact_coefficients
+from components.vessel_model import VesselModel
 from components.vessel_spec import VesselSpec, load_vessel
 
 
@@ -182,7 +183,8 @@ def test_dp_outputs_reference_trajectory_and_saturated_force(minerva: VesselSpec
     y = ctl.step(0.0, 0.05, np.concatenate([np.zeros(12), [100.0, 0, 0, 0, 0, 0]]))
     names = ControllerBlock.interface(minerva).output_names()
     assert names[:6] == ["tau_X", "tau_Y", "tau_Z", "tau_K", "tau_M", "tau_N"]
-    assert names[6:] == [f"{n}_d" for n in minerva.eta_names]
+    assert names[6:12] == [f"{n}_d" for n in minerva.eta_names]
+    assert names[12:] == ["cross_track_error", "corner_error", "leg", "speed_d"]  # appended at the end
     assert 0.0 < y[6] < 0.01  # the reference model starts smoothly, not at the setpoint
     y = ctl.step(0.05, 0.05, np.concatenate([[-50.0], np.zeros(11), [100.0, 0, 0, 0, 0, 0]]))
     assert y[0] == pytest.approx(ctl.tau_max[0])
@@ -263,3 +265,116 @@ def test_tunable_gain_change_and_deepcopy(minerva: VesselSpec) -> None:
     ctl.set_parameter("kp_north", 2.0 * ctl.params["kp_north"])
     twin.set_parameter("kp_north", twin.params["kp_north"])
     assert ctl.step(1.05, 0.05, u)[0] > twin.step(1.05, 0.05, u)[0]
+
+
+# -- 6 DOF operating modes (Minerva 2): joystick, auto-depth, auto-heading, waypoint ----------------
+
+
+def fly_modes(vessel: VesselSpec, ctl: ControllerBlock, seconds: float, eta_ref: np.ndarray,
+              joy: np.ndarray | None = None, plan: dict | None = None, h: float = 0.05,
+              eta0: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Perfect-state loop around the plant's own 6-DOF physics (``VesselModel``: Coriolis, added
+    mass, quadratic damping, restoring) with tau applied directly (no thrusters), the joystick
+    inputs and parameter changes ``plan`` = {step: [(name, value)]}; returns eta and outputs."""
+    model = VesselModel(vessel)
+    x = model.initial_state(np.zeros(6) if eta0 is None else np.array(eta0, float), np.zeros(6))
+    joy = np.zeros(4) if joy is None else np.asarray(joy, float)
+    off = [0.0] * vessel.thrusters.count
+    etas, ys = [], []
+    for k in range(round(seconds / h)):
+        for name, value in (plan or {}).get(k, []):
+            ctl.set_parameter(name, value)
+        y = ctl.step(k * h, h, np.concatenate([x[:6], x[6:12], eta_ref, joy]))
+        x = model.rk4(x, off, h, 1, tau_ext=y[:6].tolist())
+        etas.append(x[:6].copy())
+        ys.append(y.copy())
+    return np.array(etas), np.array(ys)
+
+
+def path_length(eta: np.ndarray) -> float:
+    return float(np.hypot(*np.diff(eta[:, :2], axis=0).T).sum())
+
+
+def test_joystick_is_ignored_in_dp_and_drives_the_free_dofs(minerva: VesselSpec) -> None:
+    ref = np.array([0.0, 0.0, 5.0, 0.0, 0.0, 0.0])
+    _, ya = fly_modes(minerva, controller(minerva), 20.0, ref, eta0=ref)
+    _, yb = fly_modes(minerva, controller(minerva), 20.0, ref, joy=[1.0, -1.0, 1.0, 1.0], eta0=ref)
+    np.testing.assert_array_equal(ya, yb)  # DP: the sticks have no function, and change nothing
+    ctl = controller(minerva, mode=4)
+    eta, y = fly_modes(minerva, ctl, 30.0, ref, joy=[0.5, 0.0, 0.0, 0.2], eta0=ref)
+    assert y[-1, 0] == pytest.approx(0.5 * ctl.params["joy_max_X"], rel=0.05)  # surge stick -> tau_X
+    assert y[-1, 5] == pytest.approx(0.2 * ctl.params["joy_max_N"], rel=0.05)  # yaw stick -> tau_N
+    assert np.unwrap(eta[:, 5])[-1] > 0.5 and path_length(eta) > 3.0  # it turns and moves
+    assert np.abs(eta[:, 3:5]).max() < 0.02  # roll and pitch are still held (turning at speed: 0.85 deg)
+
+
+def test_auto_depth_and_auto_heading_hold_their_dof_under_the_joystick(minerva: VesselSpec) -> None:
+    ref = np.array([0.0, 0.0, 5.0, 0.0, 0.0, 0.3])
+    eta0 = ref.copy()
+    eta, _ = fly_modes(minerva, controller(minerva, mode=2), 60.0, ref, joy=[0.6, 0.3, 1.0, 0.1], eta0=eta0)
+    assert np.abs(eta[:, 2] - 5.0).max() < 0.02  # depth held; the heave stick does nothing
+    assert path_length(eta) > 5.0 and abs(np.unwrap(eta[:, 5])[-1] - 0.3) > 0.3  # the yaw stick turns it
+    eta, _ = fly_modes(minerva, controller(minerva, mode=3), 60.0, ref, joy=[0.0, 0.0, 0.5, 1.0], eta0=eta0)
+    assert np.abs(eta[:, 5] - 0.3).max() < 0.005  # heading held; the yaw stick does nothing
+    assert eta[-1, 2] > 6.0  # the heave stick dives
+    eta, _ = fly_modes(minerva, controller(minerva, mode=5), 60.0, ref, joy=[0.6, 0.0, 1.0, 1.0], eta0=eta0)
+    assert np.abs(eta[:, 2] - 5.0).max() < 0.02 and np.abs(eta[:, 5] - 0.3).max() < 0.005
+    assert path_length(eta) > 5.0
+
+
+def test_joystick_to_dp_is_bumpless_and_stops_where_it_glides(minerva: VesselSpec) -> None:
+    ref = np.array([0.0, 0.0, 5.0, 0.0, 0.0, 0.0])
+    ctl = controller(minerva, mode=4)
+    plan = {600: [("mode", 0)]}
+    eta, y = fly_modes(minerva, ctl, 90.0, ref, joy=[0.1, 0.0, 0.0, 0.0], plan=plan, eta0=ref)
+    # The stick stays pushed, but DP does not use it: at the switch the force is continuous.
+    steps = np.abs(np.diff(y[:, :6], axis=0))
+    np.testing.assert_allclose(y[600, :6], y[599, :6], atol=1e-9)
+    # DP holds where the vessel glides to (x0 + v0 / omega_ref), not at the old setpoint 0.
+    x0, v0 = eta[599, 0], (eta[599, 0] - eta[598, 0]) / 0.05
+    assert v0 > 0.2 and eta[-1, 0] == pytest.approx(x0 + v0 / 0.2, abs=0.05)
+    assert np.all(np.diff(eta[600:, 0]) > -1e-3)  # no reversing
+    # Without blending the same switch jumps by the stick force.
+    ctl = controller(minerva, mode=4, mode_blend_time=0.0)
+    _, y0 = fly_modes(minerva, ctl, 31.0, ref, joy=[0.1, 0.0, 0.0, 0.0], plan=plan, eta0=ref)
+    jump = abs(y0[600, 0] - y0[599, 0])
+    assert jump > 30.0 and steps[600:].max(axis=0)[0] < 0.5 * jump  # blended: gradual after the switch
+    # A new setpoint from the operator releases the latch.
+    ctl.set_parameter("mode", 0)
+    ctl.step(0.0, 0.05, np.concatenate([eta[-1], np.zeros(6), [1.0, 0, 5.0, 0, 0, 0], np.zeros(4)]))
+    assert math.isnan(ctl._latch[0]) and math.isfinite(ctl._latch[1])
+
+
+def test_waypoint_mode_flies_a_lawnmower_with_small_corner_errors(minerva: VesselSpec) -> None:
+    ref = np.array([0.0, 0.0, 5.0, 0.0, 0.0, 0.0])
+    ctl = controller(minerva, mode=1, lm_lines=2, lm_spacing=3.0, lm_length=6.0, lm_north=1.0)
+    eta, y = fly_modes(minerva, ctl, 110.0, ref, eta0=ref)
+    names = ControllerBlock.interface(minerva).output_names()
+    leg = y[:, names.index("leg")]
+    assert ctl.guidance is not None and ctl.guidance.legs == 4  # approach + 3
+    assert leg[-1] == 5  # done
+    assert len(ctl.guidance.corner_errors) == 3 and max(ctl.guidance.corner_errors) < 0.05
+    assert np.abs(y[:, names.index("cross_track_error")]).max() < 0.05
+    assert y[:, names.index("speed_d")].max() == pytest.approx(0.3)
+    np.testing.assert_allclose(eta[-1, :2], [1.0, 3.0], atol=0.02)  # holds the last waypoint
+    assert np.abs(eta[:, 2] - 5.0).max() < 0.01 and np.abs(eta[:, 3:5]).max() < 0.01
+    # Without the model feed-forward the PID alone lags the moving reference much more.
+    ctl = controller(minerva, mode=1, lm_lines=2, lm_spacing=3.0, lm_length=6.0, lm_north=1.0, ff_gain=0.0)
+    _, y0 = fly_modes(minerva, ctl, 60.0, ref, eta0=ref)
+    assert np.abs(y0[:, names.index("cross_track_error")]).max() > 2 * np.abs(
+        y[:1200, names.index("cross_track_error")]).max()
+
+
+def test_mode_and_guidance_parameters_are_checked(minerva: VesselSpec) -> None:
+    with pytest.raises(ValueError, match="'mode'"):
+        controller(minerva, mode=6)
+    with pytest.raises(ValueError, match="waypoints"):
+        controller(minerva, waypoints="1, 2; 3")
+    with pytest.raises(ValueError, match="guide_speed"):
+        controller(minerva).set_parameter("guide_speed", 0.0)
+    with pytest.raises(ValueError, match="lm_side"):
+        controller(minerva, lm_side=0)
+    ctl = controller(minerva, mode=1, waypoints="2, 0; 2, 2")
+    ctl.step(0.0, 0.05, np.zeros(22))
+    assert ctl.guidance is not None
+    np.testing.assert_allclose(ctl.guidance.points, [[0, 0], [2, 0], [2, 2]])
