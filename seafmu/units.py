@@ -17,13 +17,14 @@ _UNITS: dict[str, tuple[str, float]] = {
     "rad": ("rad", 1.0), "deg": ("rad", math.pi / 180.0),
     "m/s": ("m/s", 1.0), "kn": ("m/s", 1852.0 / 3600.0), "km/h": ("m/s", 1.0 / 3.6),
     "rad/s": ("rad/s", 1.0), "deg/s": ("rad/s", math.pi / 180.0),
+    "m/s^2": ("m/s^2", 1.0), "rad/s^2": ("rad/s^2", 1.0), "deg/s^2": ("rad/s^2", math.pi / 180.0),
     "N": ("N", 1.0), "kN": ("N", 1000.0),
     "N.m": ("N.m", 1.0), "Nm": ("N.m", 1.0), "kN.m": ("N.m", 1000.0),
     "rev/s": ("rev/s", 1.0), "rps": ("rev/s", 1.0), "rpm": ("rev/s", 1.0 / 60.0),
     "kg": ("kg", 1.0), "Hz": ("Hz", 1.0), "1": ("1", 1.0),
 }
 
-_QUANTITY = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*([A-Za-z/.]+)\s*$")
+_QUANTITY = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*([A-Za-z/.^2]+)\s*$")
 
 
 class UnitError(ValueError):
