@@ -59,9 +59,11 @@ class GaussMarkovCurrent(Current):
         return n + self.dev[0], e + self.dev[1]
 
     def step(self, h: float) -> None:
+        if self.variation == 0.0:  # fixed for the run (not tunable): nothing to draw
+            return
         a = math.exp(-h / self.time_constant)
         s = self.variation * math.sqrt(1.0 - a * a)
-        w = self.rng.standard_normal(2)  # drawn even when variation = 0: the stream stays aligned
+        w = self.rng.standard_normal(2)
         self.dev = [a * self.dev[0] + s * float(w[0]), a * self.dev[1] + s * float(w[1])]
 
     def body(self, eta: np.ndarray) -> np.ndarray:

@@ -21,6 +21,28 @@ Predict-then-update because the plant time-stamps a sample at the END of the ste
 measurements an observer step sees belong to t + h; tau_alloc (from the allocator, stepped last)
 belongs to t and is held over the step, as the thrusters hold it.
 
+Acoustic position fixes (the sensor measuring north and east: USBL; the AMV's GNSS) get two more
+things: a chi-square gate at a chosen probability (``gate_probability`` p: a fix whose normalised
+innovation squared y^T S^-1 y exceeds the chi-square quantile chi2_m(p), m = number of channels, is
+rejected; a consistent filter then rejects a fraction 1 - p of good fixes), and dead reckoning:
+without an accepted fix for more than ``dr_timeout`` seconds (dropout or rejections) the filter
+runs on DVL/gyro/AHRS and the model alone, says so in ``dead_reckoning`` = 1, and its
+``position_std`` grows. So that a filter that has drifted cannot lock itself out, more than
+``gate_max_rejections`` consecutive rejected fixes reset the horizontal position to the next
+failing fix (its covariance to the sensor's).
+
+Wave filter (``wave_filter`` = 1, fixed at initialisation): DP must not chase first-order wave
+motion (the thrusters cannot follow it, saturate, and the allocation error spills into roll and
+yaw). The state is extended by a linear wave model per horizontal position (and depth) in NED,
+
+    xi_dot = zeta,   zeta_dot = -omega_0^2 xi - 2 lambda omega_0 zeta + w_wave
+
+(Fossen's second-order wave model, resonance at ``wave_filter_omega``, relative damping
+``wave_filter_damping``, white noise of intensity ``wave_filter_q``); positions are measured as
+eta + xi, body velocities (DVL) as nu + R(Theta)^T zeta. The estimates given to the controller,
+``<eta>_hat`` and ``<nu>_hat``, are then the low-frequency motion; ``wave_<eta>_hat`` report xi.
+The model is the classical DP observer structure (Fossen 2011, ch. 11; Sørensen 2011).
+
 Why hand-written: filterpy/pykalman would need the Jacobian from us anyway and add a Python call
 layer per step; the cost on an 18-state filter is the number of NumPy calls, so the Jacobian is
 analytic (kinematics, restoring, damping) and the Coriolis term uses a precomputed tensor (C(nu) nu
@@ -35,10 +57,11 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from scipy.special import chdtri
 
 from components.allocation import FORCE_UNIT
 from components.block import Block, Interface, Signal
-from components.kinematics import m2c, wrap_angle
+from components.kinematics import m2c, rzyx, wrap_angle
 from components.vessel_spec import ANGLE_NAMES, VesselSpec
 
 PREDICT_DT_MAX = 0.05  # s: largest prediction sub-step
@@ -73,13 +96,22 @@ class _Channels:
     eta_idx: np.ndarray
     diag: tuple[np.ndarray, np.ndarray]
     var: np.ndarray  # noise variance from the vessel file (before r_scale)
+    pos_fix: bool = False  # a position-fix sensor (north and east): chi-square gate, dead reckoning
+    wave: bool = False  # measures a state the wave filter adds to (position, body velocity)
 
     @classmethod
-    def build(cls, idx: np.ndarray, angle: np.ndarray, is_eta: np.ndarray, var: np.ndarray) -> _Channels:
+    def build(cls, idx: np.ndarray, angle: np.ndarray, is_eta: np.ndarray, var: np.ndarray,
+              pos_fix: bool = False, wave: bool = False) -> _Channels:
         contiguous = bool(np.all(np.diff(idx) == 1))
         return cls(idx=idx, sel=slice(int(idx[0]), int(idx[-1]) + 1) if contiguous else idx, angle=angle,
                    has_angle=bool(angle.any()), is_eta=is_eta, has_eta=bool(is_eta.any()),
-                   eta_idx=idx[is_eta], diag=np.diag_indices(len(idx)), var=var)
+                   eta_idx=idx[is_eta], diag=np.diag_indices(len(idx)), var=var, pos_fix=pos_fix,
+                   wave=wave)
+
+
+def chi2_quantile(p: float, m: int) -> float:
+    """x with P(chi2_m <= x) = p (scipy.special, not scipy.stats: the FMU loads faster)."""
+    return float(chdtri(m, 1.0 - p))
 
 
 def coriolis_tensor(M: np.ndarray) -> np.ndarray:
@@ -112,6 +144,14 @@ class ObserverBlock(Block):
         outputs += [Signal(f"bias_{t}_hat", FORCE_UNIT[t], f"estimated bias force {t} (body)")
                     for t in vessel.tau_names]
         outputs.append(Signal("position_std", "m", "sqrt(var north + var east) of the estimate"))
+        # Appended (issue 5): position-fix gating and dead reckoning.
+        outputs += [
+            Signal("pos_fixes_rejected", "", "position fixes rejected by a gate so far"),
+            Signal("dead_reckoning", "", "1 while no position fix was accepted for more than dr_timeout"),
+        ]
+        outputs += [Signal(f"wave_{nm}_hat", "m", f"estimated wave-frequency displacement {nm} (NED; "
+                           "0 without wave filter)")
+                    for nm in vessel.eta_names if nm in ("north", "east", "down")]
         params = [
             Signal("q_velocity", "m/s^2/sqrt(Hz)", "process noise on the body accelerations (model "
                    "error), same number used for rad/s^2", min=0.0, start=0.02, tunable=True),
@@ -123,6 +163,25 @@ class ObserverBlock(Block):
                    min=0.0, start=1.0, tunable=True),
             Signal("innovation_gate", "", "reject a sample whose normalised innovation squared exceeds "
                    "this (chi-square; 0 = accept all)", min=0.0, start=0.0, tunable=True),
+            # Appended (issue 5).
+            Signal("gate_probability", "", "chi-square gate on position fixes: accept a fix whose "
+                   "NIS is below the chi2_m quantile at this probability (e.g. 0.999; 0 = off)",
+                   min=0.0, max=0.999999, start=0.0, tunable=True),
+            Signal("gate_max_rejections", "", "after this many consecutive rejected position fixes "
+                   "the next failing one resets the position (0 = never)", min=0.0, start=5.0,
+                   tunable=True),
+            Signal("dr_timeout", "s", "dead reckoning is declared after this long without an "
+                   "accepted position fix", min=0.0, start=3.0, tunable=True),
+            Signal("wave_filter", "", "1 = estimate first-order wave motion separately and give the "
+                   "controller the low-frequency motion; 0 = off (fixed at initialisation)", min=0.0,
+                   max=1.0, start=0.0),
+            Signal("wave_filter_omega", "rad/s", "resonance of the wave model (about 2 pi / T_p)",
+                   min=0.0, start=1.2566, tunable=True),
+            Signal("wave_filter_damping", "", "relative damping lambda of the wave model", min=0.0,
+                   start=0.1, tunable=True),
+            Signal("wave_filter_q", "m/s^2/sqrt(Hz)", "white-noise intensity driving the wave model "
+                   "(stationary std of xi = q / sqrt(4 lambda omega^3))", min=0.0, start=0.05,
+                   tunable=True),
         ]
         return Interface(inputs=inputs, outputs=outputs, parameters=params)
 
@@ -133,7 +192,17 @@ class ObserverBlock(Block):
         iface = self.interface(vessel)
         self._in_names = iface.input_names()
         d = self.d = vessel.dof
-        n = self.n = 3 * d
+        # Wave filter states: xi and zeta for each translational position (north, east[, down]).
+        self._wave_on = float(self.params.get("wave_filter", 0.0)) > 0.0
+        self._wdof = [i for i, nm in enumerate(vessel.eta_names) if nm in ("north", "east", "down")]
+        nw = self.nw = len(self._wdof) if self._wave_on else 0
+        n = self.n = 3 * d + 2 * nw
+        self._w0 = 3 * d  # index of xi_1; zeta_1 at 3 d + nw
+        # state index -> (kind, k): a position with wave state xi_k, or body velocity component k
+        self._wave_map: dict[int, tuple[str, int]] = {}
+        if nw:
+            self._wave_map.update({i: ("pos", k) for k, i in enumerate(self._wdof)})
+            self._wave_map.update({d + k: ("vel", k) for k in range(nw)})
         M = 0.5 * (vessel.M + vessel.M.T)
         self.Minv = np.linalg.inv(M)
         self._m_diag = np.diag(M).copy()
@@ -159,6 +228,8 @@ class ObserverBlock(Block):
                 np.array([c in ANGLE_NAMES for c in s.channels]),
                 np.array([c in vessel.eta_names for c in s.channels]),
                 np.maximum(np.asarray(s.noise_std, dtype=float) ** 2, R_FLOOR),
+                pos_fix="north" in s.channels and "east" in s.channels,
+                wave=any(state_names.index(c) in self._wave_map for c in s.channels),
             )
             self._sensors.append((slice(pos, pos + k), pos + k, ch))
             pos += k + 1
@@ -167,16 +238,29 @@ class ObserverBlock(Block):
 
         # Constant parts of the Jacobian A = df/dx.
         self._A = np.zeros((n, n))
-        self._A[d : 2 * d, 2 * d :] = self.Minv
+        self._A[d : 2 * d, 2 * d : 3 * d] = self.Minv
         self._diag = np.diag_indices(n)
         self.x = np.zeros(n)
         p0 = np.concatenate([np.full(d, P0_POSITION), np.full(d, P0_VELOCITY),
-                             (P0_BIAS_ACCEL * self._m_diag) ** 2])
+                             (P0_BIAS_ACCEL * self._m_diag) ** 2, self._wave_p0()])
         self.P = np.diag(p0)
         self._last_count = np.zeros(len(self._sensors))
         self._initialised = np.zeros(d, dtype=bool)  # eta states set from a first sample
-        self.n_rejected = 0
+        self.n_rejected = 0  # rejections by either gate, any sensor
+        self.pos_rejected = 0  # rejected position fixes
+        self.pos_resets = 0  # position resets after too many consecutive rejections
+        self._consecutive = 0  # consecutive rejected position fixes
+        self._since_fix = 0.0  # s since the last accepted position fix
         self._apply_params()
+
+    def _wave_p0(self) -> np.ndarray:
+        """Stationary covariance of the wave model: var xi = q^2 / (4 lambda w^3), var zeta = w^2 var xi."""
+        if not self.nw:
+            return np.zeros(0)
+        p = self.params
+        q, lam, w = float(p["wave_filter_q"]), float(p["wave_filter_damping"]), float(p["wave_filter_omega"])
+        var = q * q / max(4.0 * lam * w**3, 1e-12)
+        return np.concatenate([np.full(self.nw, var), np.full(self.nw, w * w * var)])
 
     # -- parameters ----------------------------------------------------------------------------
     def _check(self, name: str, value: Any) -> None:
@@ -190,6 +274,10 @@ class ObserverBlock(Block):
             raise ValueError(f"observer: parameter '{name}' must be positive, got {value!r}")
         if v < 0.0:
             raise ValueError(f"observer: parameter '{name}' must be >= 0, got {value!r}")
+        if name == "gate_probability" and v >= 1.0:
+            raise ValueError(f"observer: parameter '{name}' must be < 1, got {value!r}")
+        if name == "gate_max_rejections" and not v.is_integer():
+            raise ValueError(f"observer: parameter '{name}' must be a whole number, got {value!r}")
 
     def set_parameter(self, name: str, value: Any) -> None:
         self._check(name, value)
@@ -199,12 +287,25 @@ class ObserverBlock(Block):
     def _apply_params(self) -> None:
         p, d = self.params, self.d
         self._inv_tb = 1.0 / float(p["bias_time_constant"])
-        self._A[2 * d :, 2 * d :] = -self._inv_tb * np.eye(d)
+        self._A[2 * d : 3 * d, 2 * d : 3 * d] = -self._inv_tb * np.eye(d)
         qv = float(p["q_velocity"]) ** 2
         qb = (float(p["q_bias"]) * self._m_diag) ** 2
-        self._Qc = np.concatenate([np.full(d, Q_ETA), np.full(d, qv), qb])
+        nw = self.nw
+        qw = float(p["wave_filter_q"]) ** 2
+        self._Qc = np.concatenate([np.full(d, Q_ETA), np.full(d, qv), qb,
+                                   np.full(nw, Q_ETA), np.full(nw, qw)])
+        if nw:
+            w0, lam = float(p["wave_filter_omega"]), float(p["wave_filter_damping"])
+            Aw = np.block([[np.zeros((nw, nw)), np.eye(nw)],
+                           [-(w0**2) * np.eye(nw), -2.0 * lam * w0 * np.eye(nw)]])
+            self._A[3 * d :, 3 * d :] = Aw
+            self._Aw = Aw
         self._r_scale = float(p["r_scale"])
         self._gate = float(p["innovation_gate"])
+        self._gate_p = float(p["gate_probability"])
+        self._pos_thr = {m: chi2_quantile(self._gate_p, m) for m in (1, 2, 3)} if self._gate_p > 0 else {}
+        self._max_rej = int(float(p["gate_max_rejections"]))
+        self._dr_timeout = float(p["dr_timeout"])
 
     # -- model ---------------------------------------------------------------------------------
     def _model(self, x: np.ndarray, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -220,15 +321,17 @@ class ObserverBlock(Block):
         S = self._MinvG @ nu + self._MinvDQ * (2.0 * np.abs(nu))
         if d == 6:
             eta_dot, g = self._kin6(x, A)
-            force = tau + x[12:] - g
+            force = tau + x[12:18] - g
         else:
             eta_dot = self._kin3(x, A)
-            force = tau + x[6:]
+            force = tau + x[6:9]
         A[d : 2 * d, d : 2 * d] = -(S + self._MinvDL)
         f = np.empty(self.n)
         f[:d] = eta_dot
         f[d : 2 * d] = self.Minv @ force - (0.5 * S + self._MinvDL) @ nu
-        f[2 * d :] = -self._inv_tb * x[2 * d :]
+        f[2 * d : 3 * d] = -self._inv_tb * x[2 * d : 3 * d]
+        if self.nw:
+            f[3 * d :] = self._Aw @ x[3 * d :]
         return f, A
 
     @staticmethod
@@ -306,6 +409,8 @@ class ObserverBlock(Block):
         """Measurement update with one sensor's channels; False if rejected by the gate."""
         if ch.has_eta and not self._initialised[ch.eta_idx].all():
             return self._first_fix(z, ch)
+        if ch.wave and self.nw:
+            return self._update_wave(z, ch)
         sel, var = ch.sel, ch.var * self._r_scale
         P = self.P
         y = z - self.x[sel]
@@ -315,9 +420,8 @@ class ObserverBlock(Block):
         S = PHt[sel].copy()  # a view of P when sel is a slice
         S[ch.diag] += var
         Sinv = np.linalg.inv(S)
-        if self._gate > 0.0 and float(y @ Sinv @ y) > self._gate:
-            self.n_rejected += 1
-            return False
+        if not self._gated(y, Sinv, ch):
+            return self._rejected(z, ch)
         K = PHt @ Sinv
         self.x += K @ y
         # Joseph form (I - KH) P (I - KH)^T + K R K^T, written with H = selection of the channels:
@@ -329,6 +433,122 @@ class ObserverBlock(Block):
         self.P = P
         self._wrap()
         return True
+
+    def _gated(self, y: np.ndarray, Sinv: np.ndarray, ch: _Channels) -> bool:
+        """True if the innovation passes the gates (NIS test, chi-square test on position fixes)."""
+        if self._gate > 0.0 or (ch.pos_fix and self._gate_p > 0.0):
+            nis = float(y @ Sinv @ y)
+            if (self._gate > 0.0 and nis > self._gate) or (ch.pos_fix and self._gate_p > 0.0 and nis > (
+                    self._pos_thr.get(len(y)) or chi2_quantile(self._gate_p, len(y)))):
+                return False
+        if ch.pos_fix:
+            self._consecutive = 0
+        return True
+
+    def _rejected(self, z: np.ndarray, ch: _Channels) -> bool:
+        """Count a gated sample; too many consecutive rejected position fixes reset the position."""
+        if ch.pos_fix:
+            self._consecutive += 1
+            if 0 < self._max_rej < self._consecutive:
+                self._reset_position(z, ch)
+                return True
+            self.pos_rejected += 1
+        self.n_rejected += 1
+        return False
+
+    def _update_wave(self, z: np.ndarray, ch: _Channels) -> bool:
+        """Update with a sensor the wave filter adds to: positions eta + xi, body velocities nu + R^T zeta.
+
+        General H (one or two non-zeros per row for positions; R^T and its derivative in the angles
+        for velocities), Joseph form.
+        """
+        x, nw, n = self.x, self.nw, self.n
+        m = len(z)
+        H = np.zeros((m, n))
+        H[np.arange(m), ch.idx] = 1.0
+        zhat = x[ch.idx].copy()
+        vel_rows: list[tuple[int, int]] = []
+        for r, i in enumerate(ch.idx.tolist()):
+            kind, k = self._wave_map.get(i, ("", -1))
+            if kind == "pos":
+                H[r, self._w0 + k] = 1.0
+                zhat[r] += x[self._w0 + k]
+            elif kind == "vel":
+                vel_rows.append((r, k))
+        if vel_rows:
+            zeta = x[self._w0 + nw : self._w0 + 2 * nw]
+            v_b, dv, Rt = self._body_wave_velocity(x, zeta)
+            zi = self._w0 + nw
+            for r, k in vel_rows:
+                zhat[r] += v_b[k]
+                H[r, zi : zi + nw] = Rt[k]
+                for a, col in dv:
+                    H[r, a] = col[k]
+        y = z - zhat
+        if ch.has_angle:
+            y[ch.angle] = (y[ch.angle] + math.pi) % (2.0 * math.pi) - math.pi
+        var = ch.var * self._r_scale
+        P = self.P
+        PHt = P @ H.T
+        S = H @ PHt
+        S[ch.diag] += var
+        Sinv = np.linalg.inv(S)
+        if not self._gated(y, Sinv, ch):
+            return self._rejected(z, ch)
+        K = PHt @ Sinv
+        self.x += K @ y
+        IKH = -K @ H
+        IKH[self._diag] += 1.0
+        P = IKH @ P @ IKH.T + (K * var) @ K.T
+        P += P.T
+        P *= 0.5
+        self.P = P
+        self._wrap()
+        return True
+
+    def _body_wave_velocity(self, x: np.ndarray, zeta: np.ndarray) -> tuple[np.ndarray, list, np.ndarray]:
+        """R^T zeta (body frame), its derivatives in the angles as [(state index, column)], and
+        d(R^T zeta)/d zeta (rows: body velocity components, columns: the wave states' NED axes).
+        With R = Rz Ry Rx: d(R^T z)/dphi = -e_x x (R^T z), d/dtheta = -Rx^T (e_y x (Ry^T Rz^T z)),
+        d/dpsi = -R^T (e_z x z).
+        """
+        if self.d == 6:
+            phi, th, psi = x[3:6].tolist()
+            z3 = np.zeros(3)
+            z3[: len(zeta)] = zeta
+            R = rzyx(phi, th, psi)
+            Rt = R.T
+            v = Rt @ z3
+            cf, sf = math.cos(phi), math.sin(phi)
+            ct, st = math.cos(th), math.sin(th)
+            cp, sp = math.cos(psi), math.sin(psi)
+            Rxt = np.array([[1.0, 0.0, 0.0], [0.0, cf, sf], [0.0, -sf, cf]])
+            a = np.array([[ct, 0.0, -st], [0.0, 1.0, 0.0], [st, 0.0, ct]]) @ (
+                np.array([[cp, sp, 0.0], [-sp, cp, 0.0], [0.0, 0.0, 1.0]]) @ z3)
+            d_phi = -np.cross([1.0, 0.0, 0.0], v)
+            d_th = -(Rxt @ np.cross([0.0, 1.0, 0.0], a))
+            d_psi = -(Rt @ np.cross([0.0, 0.0, 1.0], z3))
+            return v, [(3, d_phi), (4, d_th), (5, d_psi)], Rt[:, : len(zeta)]
+        psi = float(x[2])
+        c, s_ = math.cos(psi), math.sin(psi)
+        Rt = np.array([[c, s_], [-s_, c]])
+        v = Rt @ zeta[:2]
+        d_psi = np.array([-s_ * zeta[0] + c * zeta[1], -c * zeta[0] - s_ * zeta[1], 0.0])
+        return np.append(v, 0.0), [(2, d_psi)], np.vstack([Rt, np.zeros((1, 2))])
+
+    def _reset_position(self, z: np.ndarray, ch: _Channels) -> None:
+        """Take the fix as the position (the filter had drifted beyond its own covariance)."""
+        idx = ch.idx
+        self.x[idx] = z
+        self.P[idx, :] = 0.0
+        self.P[:, idx] = 0.0
+        self.P[idx, idx] = ch.var * self._r_scale
+        for i in idx.tolist():  # the fix is the whole position: no wave displacement on top
+            kind, k = self._wave_map.get(i, ("", -1))
+            if kind == "pos":
+                self.x[self._w0 + k] = 0.0
+        self._consecutive = 0
+        self.pos_resets += 1
 
     def _first_fix(self, z: np.ndarray, ch: _Channels) -> bool:
         """First sample of a position/attitude channel: take it as the state, with its noise."""
@@ -343,7 +563,8 @@ class ObserverBlock(Block):
         self._wrap()
         rest = ~fresh
         if rest.any():  # channels of the same sensor already initialised, or velocities
-            sub = _Channels.build(ch.idx[rest], ch.angle[rest], np.zeros(int(rest.sum()), bool), ch.var[rest])
+            sub = _Channels.build(ch.idx[rest], ch.angle[rest], np.zeros(int(rest.sum()), bool), ch.var[rest],
+                                  ch.pos_fix, any(int(i) in self._wave_map for i in ch.idx[rest]))
             return self._update(z[rest], sub)
         return True
 
@@ -358,7 +579,10 @@ class ObserverBlock(Block):
     def output(self) -> np.ndarray:
         d = self.d
         P = self.P
-        return np.concatenate([self.x[:2 * d], self.x[2 * d :], [math.sqrt(P[0, 0] + P[1, 1])]])
+        dr = 1.0 if self._since_fix > self._dr_timeout else 0.0
+        xi = self.x[3 * d : 3 * d + self.nw] if self.nw else np.zeros(len(self._wdof))
+        return np.concatenate([self.x[: 3 * d], [math.sqrt(P[0, 0] + P[1, 1]), float(self.pos_rejected), dr],
+                               xi])
 
     def _checked(self, u: np.ndarray) -> np.ndarray:
         u = np.asarray(u, dtype=float)
@@ -376,6 +600,7 @@ class ObserverBlock(Block):
 
     def step(self, t: float, h: float, u: np.ndarray) -> np.ndarray:
         u = self._checked(u)
+        self._since_fix += h
         self.predict(h, u[self._tau_slice])
         self._update_sensors(u)
         return self.output()
@@ -386,4 +611,5 @@ class ObserverBlock(Block):
             c = u[count]
             if c != self._last_count[i]:
                 self._last_count[i] = c
-                self._update(u[meas].copy(), ch)
+                if self._update(u[meas].copy(), ch) and ch.pos_fix:
+                    self._since_fix = 0.0

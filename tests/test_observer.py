@@ -129,7 +129,7 @@ def run(vessel: VesselSpec, obs: ObserverBlock, seconds: float, eta0: np.ndarray
         out["truth"].append(np.concatenate([eta, nu, f_ext]))
         out["est"].append(y[: 3 * d])
         out["std"].append(np.sqrt(np.diag(obs.P)))
-        out["pos_std"].append(y[-1])
+        out["pos_std"].append(y[3 * d])  # position_std follows the estimates
     res = {k: np.array(v) for k, v in out.items()}
     err = res["est"] - res["truth"]
     err[:, ai] = wrap_angle(err[:, ai])
@@ -266,7 +266,9 @@ def test_interface_and_deepcopy(amv: VesselSpec) -> None:
                                    "meas_r", "gyro_count", "meas_u", "meas_v", "speed_count",
                                    "tau_alloc_X", "tau_alloc_Y", "tau_alloc_N"]
     assert iface.output_names() == ["north_hat", "east_hat", "yaw_hat", "u_hat", "v_hat", "r_hat",
-                                    "bias_X_hat", "bias_Y_hat", "bias_N_hat", "position_std"]
+                                    "bias_X_hat", "bias_Y_hat", "bias_N_hat", "position_std",
+                                    "pos_fixes_rejected", "dead_reckoning",  # appended (issue 5)
+                                    "wave_north_hat", "wave_east_hat"]
     obs = observer(amv)
     u = np.ones(len(iface.inputs))
     obs.step(0.0, 0.05, u)

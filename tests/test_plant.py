@@ -65,8 +65,8 @@ def test_interface_amv(amv: VesselSpec) -> None:
     assert list(params) == [
         "seed", "noise_scale", "current_speed", "current_direction",
         "north_0", "east_0", "yaw_0", "u_0", "v_0", "r_0", "substep",
-        "fail_mode_1", "fail_mode_2", "fail_value_1", "fail_value_2",
-    ] + ENV_PARAMS  # fmt: skip
+        "fail_mode_1", "fail_mode_2", "fail_value_1", "fail_value_2", *ENV_PARAMS,
+    ]  # fmt: skip
     assert params["seed"].type == "integer" and params["seed"].start == 0
     assert params["noise_scale"].start == 1.0 and params["noise_scale"].min == 0
     assert params["current_speed"].tunable and params["current_direction"].tunable
@@ -320,7 +320,8 @@ def test_failure_parameters_are_appended_and_tunable(minerva: VesselSpec) -> Non
     params = PlantBlock.interface(minerva).parameters
     names = [p.name for p in params]
     i0 = names.index("fail_mode_1")
-    assert names[i0 : i0 + 14] == [f"fail_mode_{i}" for i in range(1, 8)] + [f"fail_value_{i}" for i in range(1, 8)]
+    fail = [f"fail_mode_{i}" for i in range(1, 8)] + [f"fail_value_{i}" for i in range(1, 8)]
+    assert names[i0 : i0 + 14] == fail
     assert names.index("substep") == i0 - 1  # everything before them keeps its place
     assert names[i0 + 14 :] == ENV_PARAMS  # only the environment/fault parameters come after them
     spec = {p.name: p for p in params}
