@@ -130,6 +130,10 @@ class PlantBlock(Block):
             Signal("usbl_dropout_length", "s", "length of the position-fix dropout (0 = none)", min=0.0,
                    start=0.0, tunable=True),
         ]
+        if vessel.dof == 3 and th.count == 2 and "land" in vessel.extra:  # the amphibious AMV
+            params.append(Signal("land_mode", "", "0 = water, 1 = land (screws roll on the ground), "
+                                 "2 = land sideways (button held)", min=0, max=2, start=0,
+                                 type="integer", tunable=True))
         return Interface(inputs=inputs, outputs=outputs, parameters=params)
 
     def __init__(self, vessel: VesselSpec, params: dict[str, Any]) -> None:
@@ -160,6 +164,13 @@ class PlantBlock(Block):
         x0 = [self._real(f"{n}_0") for n in vessel.eta_names + vessel.nu_names]
 
         self._model = VesselModel(vessel)
+        self._land = None
+        self._land_mode = 0
+        if "land_mode" in self.params:
+            from components.amv_land import LandModel
+
+            self._land = LandModel(vessel)
+            self._land_mode = self._check_land_mode(self.params["land_mode"])
         self._input_names = iface.input_names()
         self._x = self._model.initial_state(np.array(x0[:d]), np.array(x0[d:]))
         for i in self._model.angle_index:
@@ -267,7 +278,9 @@ class PlantBlock(Block):
             ul[i] = value
         cmd = model.clip(ul)
         waves = self._waves
-        if waves.field.hs > 0.0:  # wave force re-evaluated per sub-step, at its time midpoint
+        if self._land_mode and self._land is not None:  # on land: kinematics of the screws, no water
+            self._x = self._land.step(self._x, cmd, h, steps, sideways=self._land_mode == 2)
+        elif waves.field.hs > 0.0:  # wave force re-evaluated per sub-step, at its time midpoint
             dt = h / steps
             x = self._x
             d = self.vessel.dof
@@ -312,7 +325,17 @@ class PlantBlock(Block):
         """0-based indices of the thrusters whose drive has failed."""
         return [i for i, _ in self._stuck]
 
+    @staticmethod
+    def _check_land_mode(value: Any) -> int:
+        if isinstance(value, bool) or not float(value).is_integer() or int(value) not in (0, 1, 2):
+            raise ValueError(f"land_mode must be 0 (water), 1 (land) or 2 (land, sideways), got {value!r}")
+        return int(value)
+
     def set_parameter(self, name: str, value: Any) -> None:
+        if name == "land_mode" and self._land is not None:
+            self._land_mode = self._check_land_mode(value)
+            self.params[name] = self._land_mode
+            return
         if name.startswith(("fail_mode_", "fail_value_")):
             if name not in self.params:
                 raise ValueError(f"{type(self).__name__}: unknown parameter '{name}'")

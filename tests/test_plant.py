@@ -65,7 +65,7 @@ def test_interface_amv(amv: VesselSpec) -> None:
     assert list(params) == [
         "seed", "noise_scale", "current_speed", "current_direction",
         "north_0", "east_0", "yaw_0", "u_0", "v_0", "r_0", "substep",
-        "fail_mode_1", "fail_mode_2", "fail_value_1", "fail_value_2", *ENV_PARAMS,
+        "fail_mode_1", "fail_mode_2", "fail_value_1", "fail_value_2", *ENV_PARAMS, "land_mode",
     ]  # fmt: skip
     assert params["seed"].type == "integer" and params["seed"].start == 0
     assert params["noise_scale"].start == 1.0 and params["noise_scale"].min == 0
@@ -380,3 +380,23 @@ def test_bad_failure_parameters_raise_naming_them(minerva: VesselSpec, name: str
     with pytest.raises(ValueError, match=message):
         block.set_parameter(name, value)
     assert block.failed == []
+
+
+def test_amv_land_mode_follows_the_screw_kinematics(amv: VesselSpec) -> None:
+    """On land the screws roll: u = p (n1 + n2) / 2 = 0.35 m/s at n = [1, 1]; back to water without a jump."""
+    p = PlantBlock(amv, {"noise_scale": 0.0, "u_0": 0.8})
+    names = PlantBlock.interface(amv).output_names()
+    iu = names.index("u")
+    p.set_parameter("land_mode", 1)
+    y = p.output()
+    for k in range(200):
+        y = p.step(k * 0.05, 0.05, np.array([1.0, 1.0]))
+    assert y[iu] == pytest.approx(0.35, abs=1e-3)
+    assert abs(y[names.index("v")]) < 1e-9
+    p.set_parameter("land_mode", 0)
+    y2 = p.step(10.0, 0.05, np.array([1.0, 1.0]))
+    # no jump at the water line: u changes by what the 25 N of thrust does in one step (0.5 m/s^2)
+    assert abs(y2[iu] - y[iu]) < 0.03
+    with pytest.raises(ValueError, match="land_mode must be 0"):
+        p.set_parameter("land_mode", 3)
+    assert "land_mode" not in [s.name for s in PlantBlock.interface(load_vessel("minerva2")).parameters]
