@@ -20,7 +20,7 @@ _EXPORTS = {
     "CATALOGUE": "catalogue", "Effect": "catalogue",
     "identify": "diagnosis", "diagnose": "diagnosis", "Diagnosis": "diagnosis", "Identification": "diagnosis",
     "Rule": "diagnosis", "demo_trial": "diagnosis", "write_vessel": "diagnosis",
-    "vessel_updates": "diagnosis",
+    "vessel_updates": "diagnosis", "plant_trial": "plant_trials",
 }
 
 __all__ = sorted(_EXPORTS)

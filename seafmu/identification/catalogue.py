@@ -8,11 +8,15 @@ the finding in words a naval architect would use.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from seafmu.identification.trial import ROTATIONAL, Trial
+
+# Effects with a maneuver-level extension (maneuver.effect_names; output error on the whole log).
+MANEUVER_EFFECTS = ("current", "constant_force")
 
 
 @dataclass(frozen=True)
@@ -32,9 +36,9 @@ CATALOGUE: dict[str, Effect] = {e.name: e for e in (
            "static force-speed, decay, step, 2nd-order decay, pendulum"),
     Effect("current", "the water moves: damping acts on v - v_c", ("v_c",),
            "static force-speed, decay, step with quadratic damping and motion ahead and astern (to tell "
-           "it from a constant force)"),
+           "it from a constant force); maneuver (NED current v_c_north, v_c_east)"),
     Effect("constant_force", "constant external force/moment or offset (wind, tether, trim)", ("F_0",),
-           "every kind except maneuver and sway_yaw"),
+           "every kind except sway_yaw (maneuver: one per DOF, F_0[X] ...)"),
     Effect("added_mass", "inertia differs from the rigid-body value", ("m_a",),
            "step with known force (force input or known thrust coefficient) and known mass; "
            "2nd-order decay with known stiffness and mass"),
@@ -80,7 +84,10 @@ def not_applicable(name: str, trial: Trial) -> str | None:
     sway_yaw = trial.dof == "sway_yaw"
     rpm_step = k == "step" and trial.input_kind == "rpm" and not sway_yaw
     if k == "maneuver":
-        return "maneuver logs are fitted as a whole model; the catalogue extends 1-2 DOF trials"
+        if name in MANEUVER_EFFECTS:
+            return None
+        return ("a maneuver log is fitted as a whole model; of the catalogue only current and constant_force "
+                "are maneuver-level extensions so far")
     if sway_yaw:
         return None if name == "coupling" else "a sway_yaw trial tests the coupling only"
     if name == "coupling":
@@ -150,6 +157,13 @@ def input_scale(trial: Trial) -> float:
     return float(np.max(x)) if x.size else 0.0
 
 
+def effect_params(name: str, names: list[str]) -> list[str]:
+    """The fit parameters that belong to effect `name`: its catalogue names, or their per-DOF /
+    per-axis forms of a maneuver fit (F_0[X], v_c_north, ...)."""
+    own = CATALOGUE[name].params
+    return [p for p in names if p in own or any(p.startswith((f"{q}[", f"{q}_")) for q in own)]
+
+
 def null_value(param: str, trial: Trial) -> float:
     """Value of an effect parameter at which the effect vanishes (significance is tested against it)."""
     return input_scale(trial) if param == "u_sat" else 0.0
@@ -193,6 +207,31 @@ def _fmt(x: float) -> str:
 def evidence(name: str, params: dict[str, float], trial: Trial, base_val: float, ext_val: float,
              delta_aic: float, runner_up: str | None = None) -> str:
     """One sentence naming the cause in a naval architect's words, with the numbers that back it."""
+    if trial.kind == "maneuver":
+        text = _maneuver_evidence(name, params)
+    else:
+        text = _evidence_text(name, params, trial)
+    gain = (f" (held-out NRMSE {base_val:.3g} -> {ext_val:.3g}, ratio {base_val / ext_val:.2f}, "
+            f"dAIC {delta_aic:.1f})") if ext_val > 0 else ""
+    alias = f"; '{runner_up}' explains the data almost as well" if runner_up else ""
+    return text[0].upper() + text[1:] + gain + alias + "."
+
+
+def _maneuver_evidence(name: str, p: dict[str, float]) -> str:
+    """The cause in words for a maneuver extension (NED current, force per DOF)."""
+    if name == "current":
+        vn, ve = p.get("v_c_north", 0.0), p.get("v_c_east", 0.0)
+        towards = math.degrees(math.atan2(ve, vn)) % 360.0
+        return (f"the hull moves through a current of {_fmt(math.hypot(vn, ve))} m/s towards "
+                f"{towards:.0f} deg (north {_fmt(vn)}, east {_fmt(ve)} m/s): the damping acts on the "
+                "velocity through the water")
+    forces = ", ".join(f"{k[4:-1]} = {_fmt(v)} {'N' if k[4:-1] in 'XYZ' else 'N·m'}"
+                       for k, v in p.items() if k.startswith("F_0["))
+    return f"a steady external force acts on the hull ({forces}): wind, tether pull, trim or buoyancy error"
+
+
+def _evidence_text(name: str, params: dict[str, float], trial: Trial) -> str:
+    """The cause in words for a 1-2 DOF trial."""
     rot = trial.dof in ROTATIONAL
     what = {"surge": "surge", "sway": "sway", "heave": "heave", "roll": "roll", "pitch": "pitch",
             "yaw": "yaw", "sway_yaw": "sway-yaw"}.get(trial.dof or "", "the")
@@ -229,7 +268,4 @@ def evidence(name: str, params: dict[str, float], trial: Trial, base_val: float,
         "coupling": f"sway and yaw are coupled: Y_r = {_fmt(p.get('Y_r', 0))} {u('Y_r')}, "
                     f"N_v = {_fmt(p.get('N_v', 0))} {u('N_v')}",
     }[name]
-    gain = (f" (held-out NRMSE {base_val:.3g} -> {ext_val:.3g}, ratio {base_val / ext_val:.2f}, "
-            f"dAIC {delta_aic:.1f})") if ext_val > 0 else ""
-    alias = f"; '{runner_up}' explains the data almost as well" if runner_up else ""
-    return text[0].upper() + text[1:] + gain + alias + "."
+    return text

@@ -11,8 +11,12 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from seafmu.identification.trial import BASELINES, Trial, TrialError, csv_trial, load_trial
+
+if TYPE_CHECKING:  # the fitting stack (scipy) loads only when a command runs
+    from seafmu.identification.fitting import FitResult
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -73,68 +77,88 @@ def _out(args: argparse.Namespace, trial: Trial) -> Path:
 
 
 def cmd_identify(args: argparse.Namespace) -> int:
-    from seafmu.identification.diagnosis import identify, write_vessel
-    from seafmu.identification.report import _jsonable, summary_lines, write_identify_report
-
-    try:
-        trial = load(args)
-        ident = identify(trial)
-    except TrialError as exc:
-        print(f"seafmu: error: {exc}", file=sys.stderr)
-        return 2
-    out = _out(args, trial)
-    report = write_identify_report(ident, out)
-    doc = ident.to_json()
-    (out / "identification.json").write_text(json.dumps(doc, indent=2, default=_jsonable) + "\n")
-    msg = None
-    if args.write_vessel:
-        method = f"{ident.fit.method}, baseline {trial.baseline} (seafmu identify)"
-        msg = write_vessel(trial, ident.fit, Path(args.write_vessel), method, args.vessel)
-    if args.json:
-        if msg:
-            doc["write_back"] = msg
-        print(json.dumps(doc, indent=2, default=_jsonable))
-        print(f"report: {report}", file=sys.stderr)
-    else:
-        print("\n".join(summary_lines(ident)))
-        if msg:
-            print(msg)
-        print(f"report: {report}")
-    return 0
+    """`seafmu identify`: the baseline fit (and, for maneuvers, the other method beside it)."""
+    return _run(args, diagnose=False)
 
 
 def cmd_diagnose(args: argparse.Namespace) -> int:
-    from seafmu.identification.diagnosis import diagnose, write_vessel
-    from seafmu.identification.report import _jsonable, summary_lines, write_diagnosis_report
+    """`seafmu diagnose`: baseline, every applicable catalogue effect, the acceptance rule."""
+    return _run(args, diagnose=True)
+
+
+def _run(args: argparse.Namespace, diagnose: bool) -> int:
+    """Shared body of both commands: load, fit, report, optional write-back and replay, print."""
+    from seafmu.identification import diagnosis as dg
+    from seafmu.identification import report as rp
 
     try:
         trial = load(args)
-        effects = [e.strip() for e in args.effects.split(",") if e.strip()] if args.effects else None
-        diag = diagnose(trial, effects)
+        if diagnose:
+            effects = [e.strip() for e in args.effects.split(",") if e.strip()] if args.effects else None
+            result: dg.Identification | dg.Diagnosis = dg.diagnose(trial, effects)
+        else:
+            result = dg.identify(trial)
     except TrialError as exc:
         print(f"seafmu: error: {exc}", file=sys.stderr)
         return 2
     out = _out(args, trial)
-    report = write_diagnosis_report(diag, out)
-    doc = diag.to_json()
-    (out / "diagnosis.json").write_text(json.dumps(doc, indent=2, default=_jsonable) + "\n")
-    msg = None
+    if isinstance(result, dg.Diagnosis):
+        report = rp.write_diagnosis_report(result, out)
+        fit = result.extended
+        method = f"{fit.method}, baseline {rp._baseline_name(trial, result.baseline)}" + (
+            f" extended by {result.effect} (seafmu diagnose)" if result.cause
+            else f" (seafmu diagnose: {result.effect})")
+    else:
+        report = rp.write_identify_report(result, out)
+        fit = result.fit
+        method = f"{fit.method}, baseline {trial.baseline} (seafmu identify)"
+    doc = result.to_json()
+    lines = rp.summary_lines(result)
     if args.write_vessel:
-        method = f"{diag.extended.method}, baseline {trial.baseline}" + (
-            f" extended by {diag.effect} (seafmu diagnose)" if diag.cause
-            else " (seafmu diagnose: no effect found)")
-        msg = write_vessel(trial, diag.extended, Path(args.write_vessel), method, args.vessel)
+        closing = close_loop(trial, fit, Path(args.write_vessel), method, args.vessel)
+        doc.update(closing["json"])
+        lines += closing["lines"]
+        with open(report, "a") as fh:
+            fh.write("\n## Close the loop\n\n" + "".join(f"- {ln}\n" for ln in closing["lines"]))
+    name = "diagnosis.json" if diagnose else "identification.json"
+    (out / name).write_text(json.dumps(doc, indent=2, default=rp._jsonable) + "\n")
     if args.json:
-        if msg:
-            doc["write_back"] = msg
-        print(json.dumps(doc, indent=2, default=_jsonable))
+        print(json.dumps(doc, indent=2, default=rp._jsonable))
         print(f"report: {report}", file=sys.stderr)
     else:
-        print("\n".join(summary_lines(diag)))
-        if msg:
-            print(msg)
+        print("\n".join(lines))
         print(f"report: {report}")
     return 0
+
+
+def close_loop(trial: Trial, fit: FitResult, out_path: Path, method: str,
+               vessel: str | None) -> dict[str, Any]:
+    """Write the vessel file, then replay the trial through the plant with the old and the new file.
+
+    Returns {"json": keys for the JSON document, "lines": lines for the summary and the report}.
+    """
+    import numpy as np
+
+    from seafmu.identification.diagnosis import write_vessel_file
+    from seafmu.identification.replay import Replay, replay
+
+    msg, path = write_vessel_file(trial, fit, out_path, method, vessel)
+    doc: dict[str, Any] = {"write_back": msg}
+    lines = [msg]
+    old = vessel or trial.vessel
+    if path is None or old is None:
+        return {"json": doc, "lines": lines}
+    try:
+        rep = replay(trial, fit, old, path)
+    except (TrialError, ValueError, np.linalg.LinAlgError) as exc:
+        rep = f"replay failed: {exc}"
+    if isinstance(rep, Replay):
+        doc["replay"] = rep.to_json()
+        lines.append(rep.line(f"'{old}'", str(path)))
+    else:
+        doc["replay"] = {"skipped": rep}
+        lines.append(rep if rep.startswith("replay failed") else f"replay skipped: {rep}")
+    return {"json": doc, "lines": lines}
 
 
 def main(argv: list[str] | None = None) -> int:

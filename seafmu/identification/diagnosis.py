@@ -24,9 +24,13 @@ from typing import Any
 import numpy as np
 
 from seafmu.identification import catalogue, static, timeseries
-from seafmu.identification.catalogue import CATALOGUE, null_value
+from seafmu.identification.catalogue import CATALOGUE, effect_params, null_value
 from seafmu.identification.fitting import FitResult
-from seafmu.identification.trial import DOF_INDEX, Run, Trial, TrialError, make_trial
+from seafmu.identification.trial import DOF_INDEX, Run, Trial, TrialError, make_trial, maneuver_factors
+
+# The outcome when no candidate effect was fitted at all (e.g. a maneuver trial: the catalogue
+# extends 1-2-DOF trial models). Distinct from "none", which means "tested, and nothing found".
+NOT_TESTED = "not_tested"
 
 
 @dataclass(frozen=True)
@@ -56,7 +60,7 @@ class Candidate:
                 "nrmse_fit": _num(f.nrmse_fit) if f else None,
                 "delta_aic": _num(self.delta_aic), "ratio": _num(self.ratio),
                 "significant": self.significant, "accepted": self.accepted, "reason": self.reason,
-                "params": {k: float(v) for k, v in f.params.items() if k in CATALOGUE[self.effect].params}
+                "params": {k: float(f.params[k]) for k in effect_params(self.effect, f.param_names)}
                 if f else {}}
 
 
@@ -80,8 +84,15 @@ class Diagnosis:
         return self.cause.fit if self.cause and self.cause.fit else self.baseline
 
     @property
+    def tested(self) -> bool:
+        """False when no catalogue effect could be fitted: "none" would read as "tested and clean"."""
+        return any(c.fit is not None for c in self.candidates)
+
+    @property
     def effect(self) -> str:
-        return self.cause.effect if self.cause else "none"
+        if self.cause:
+            return self.cause.effect
+        return "none" if self.tested else NOT_TESTED
 
     def ranking(self) -> list[Candidate]:
         ok = [c for c in self.candidates if c.fit is not None]
@@ -101,7 +112,7 @@ class Diagnosis:
             "trial": {"name": self.trial.name, "kind": self.trial.kind, "dof": self.trial.dof,
                       "baseline_model": self.trial.baseline, "provenance": self.trial.provenance},
             "baseline": summary(b),
-            "cause": {"effect": self.effect, "evidence": self.evidence,
+            "cause": {"effect": self.effect, "evidence": self.evidence, "tested": self.tested,
                       "ranking": [c.row() for c in self.ranking()],
                       "not_applicable": self.skipped},
             "extended": summary(e),
@@ -117,12 +128,16 @@ class Diagnosis:
 
 # -- fitting dispatch ------------------------------------------------------------------------------
 
-def fit_baseline(trial: Trial) -> FitResult:
-    """The baseline model of the trial, fitted."""
+def fit_baseline(trial: Trial, diagnosis: bool = False) -> FitResult:
+    """The baseline model of the trial, fitted.
+
+    A maneuver diagnosis always uses the output-error baseline: its extensions are output-error
+    fits, and comparing them with an LS baseline would credit the method, not the effect.
+    """
     if trial.kind == "static":
         return static.fit_static(trial, static.baseline_model(trial))
     if trial.kind == "maneuver":
-        return fit_maneuver(trial, trial.baseline)
+        return fit_maneuver(trial, "output_error" if diagnosis else trial.baseline)
     return timeseries.fit_timeseries(trial, timeseries.baseline_model(trial))
 
 
@@ -130,22 +145,30 @@ def fit_extension(trial: Trial, base: FitResult, effect: str) -> FitResult:
     if trial.kind == "static":
         model = static.extend(base.extras["model"], effect, trial)
         return static.fit_static(trial, model, start={**base.params})
+    if trial.kind == "maneuver":  # refit from the baseline's damping with the effect's parameters
+        return fit_maneuver(trial, "output_error", effect=effect, start=dict(base.params))
     return timeseries.fit_effect(trial, base, effect)
 
 
-def fit_maneuver(trial: Trial, method: str) -> FitResult:
+def fit_maneuver(trial: Trial, method: str, effect: str | None = None,
+                 start: dict[str, float] | None = None) -> FitResult:
     """Multi-DOF maneuver log: delegated to the maneuver module (Minerva 2 LS or output error)."""
-    try:
-        from seafmu.identification.maneuver import identify_maneuver, load_maneuver_csv
-    except ImportError as exc:
-        raise TrialError(f"{trial.name}: maneuver identification is not available ({exc})") from None
     from components.vessel_spec import load_vessel
+    from seafmu.identification.maneuver import identify_maneuver
 
     if not trial.vessel:
         raise TrialError(f"{trial.name}: a maneuver trial needs a vessel (trial 'vessel' or --vessel)")
     vessel = load_vessel(trial.vessel)
-    data = load_maneuver_csv(trial.files[0], vessel, trial.columns or None)
-    return identify_maneuver(data, vessel, method=method, validation_fraction=trial.validation_fraction)
+    data = maneuver_data(trial, vessel)
+    return identify_maneuver(data, vessel, method=method, validation_fraction=trial.validation_fraction,
+                             effect=effect, oe_start=start)
+
+
+def maneuver_data(trial: Trial, vessel: Any) -> Any:
+    """The maneuver trial's log in SI units (column units from the trial YAML applied)."""
+    from seafmu.identification.maneuver import load_maneuver_csv
+
+    return load_maneuver_csv(trial.files[0], vessel, trial.columns or None, maneuver_factors(trial))
 
 
 # -- identification and diagnosis ------------------------------------------------------------------
@@ -203,7 +226,7 @@ def diagnose(trial: Trial, effects: list[str] | None = None, rule: Rule | None =
     unknown = [e for e in effects or [] if e not in CATALOGUE]
     if unknown:
         raise TrialError(f"unknown effect(s) {', '.join(unknown)}; catalogue: {', '.join(CATALOGUE)}")
-    base = fit_baseline(trial)
+    base = fit_baseline(trial, diagnosis=True)
     skipped: dict[str, str] = {}
     cands: list[Candidate] = []
     for name in effects or list(CATALOGUE):
@@ -230,7 +253,7 @@ def judge(name: str, base: FitResult, fit: FitResult, trial: Trial, rule: Rule,
     ratio = base.nrmse_validation / ev if ev > 0 and math.isfinite(ev) else (math.inf if ev == 0 else 0.0)
     dAIC = fit.aic - base.aic
     sig = False
-    for p in CATALOGUE[name].params:
+    for p in effect_params(name, fit.param_names):
         if p in fit.ci95:
             lo, hi = fit.ci95[p]
             null = null_value(p, trial)
@@ -267,12 +290,25 @@ def explain(trial: Trial, base: FitResult, cands: list[Candidate], cause: Candid
     if cause is None:
         tried = [c for c in cands if c.fit is not None]
         if not tried:
-            return (f"No effect found: no catalogue effect is observable in a {trial.kind} trial "
-                    f"({len(skipped)} not applicable).")
+            failed = [c for c in cands if c.fit is None]
+            if failed:
+                why = f"every candidate fit failed ({failed[0].effect}: {failed[0].reason})"
+            elif trial.kind == "maneuver":
+                why = ("none of the maneuver-level extensions (current, constant_force) was asked for; "
+                       "the other catalogue effects extend 1-2-DOF trial models")
+            else:
+                why = f"no catalogue effect is observable in this {trial.kind} trial"
+            return f"Not tested: {why} ({len(skipped)} not applicable). This is not a clean bill of health."
         top = max(tried, key=lambda c: c.ratio)
-        return (f"No effect found: none of the {len(tried)} candidate effects beats the baseline clearly on "
+        text = (f"No effect found: none of the {len(tried)} candidate effects beats the baseline clearly on "
                 f"held-out data (best: {top.effect}, ratio {top.ratio:.3f}, dAIC {top.delta_aic:.1f}; "
-                f"{top.reason}).")
+                f"{top.reason})")
+        w = base.whiteness
+        if w.get("white") is False:
+            # The model is still wrong somewhere: say so rather than imply the data are explained.
+            text += (f"; but the baseline residual is not white (Ljung-Box p = {w['ljung_box_p']:.2g}): "
+                     "structure remains that no catalogue effect explains")
+        return text + "."
     # A second accepted effect that is almost as good is named: the data may not separate them.
     runner = None
     for c in cands:
@@ -399,14 +435,17 @@ def vessel_updates(trial: Trial, fit: FitResult, vessel_dof: int) -> tuple[dict[
 
 def write_vessel(trial: Trial, fit: FitResult, out_path: Path, method: str, vessel: str | None = None) -> str:
     """Write identified values into a copy of the trial's vessel file; returns a one-line message."""
+    return write_vessel_file(trial, fit, out_path, method, vessel)[0]
+
+
+def write_vessel_file(trial: Trial, fit: FitResult, out_path: Path, method: str,
+                      vessel: str | None = None) -> tuple[str, Path | None]:
+    """As write_vessel, plus the written path (None if nothing was written), for the replay."""
     name = vessel or trial.vessel
     if not name:
-        return "write-back skipped: the trial names no vessel (trial 'vessel' or --vessel)"
-    try:
-        from seafmu.identification.writeback import write_back
-    except ImportError:
-        return "write-back skipped: seafmu.identification.writeback is not available"
+        return "write-back skipped: the trial names no vessel (trial 'vessel' or --vessel)", None
     from components.vessel_spec import load_vessel
+    from seafmu.identification.writeback import write_back
 
     spec = load_vessel(name)
     if trial.kind == "maneuver":  # the maneuver module knows its own parameter names
@@ -414,13 +453,13 @@ def write_vessel(trial: Trial, fit: FitResult, out_path: Path, method: str, vess
 
         updates, mprov = updates_from_fit(fit, spec, trial=trial.name)
         if not updates:
-            return "write-back skipped: the maneuver fit has no vessel-file parameters"
-        mprov = {"date": _dt.date.today().isoformat(), "method": method, **mprov}
+            return "write-back skipped: the maneuver fit has no vessel-file parameters", None
+        mprov = {**mprov, "date": _dt.date.today().isoformat(), "method": method}
         path = write_back(name, updates, out_path, mprov)
-        return f"wrote {len(updates)} entries ({', '.join(sorted(updates)[:6])}, ...) to {path}"
+        return f"wrote {len(updates)} entries ({', '.join(sorted(updates)[:6])}, ...) to {path}", path
     updates, origin, notes = vessel_updates(trial, fit, spec.dof)
     if not updates:
-        return "write-back skipped: " + "; ".join(notes or ["nothing to write"])
+        return "write-back skipped: " + "; ".join(notes or ["nothing to write"]), None
     prov = {"trial": trial.name, "date": _dt.date.today().isoformat(), "method": method}
     if notes:
         prov["note"] = "; ".join(notes)
@@ -432,7 +471,7 @@ def write_vessel(trial: Trial, fit: FitResult, out_path: Path, method: str, vess
             prov[key] = f"95 % CI [{lo:.4g}, {hi:.4g}]"
     path = write_back(name, updates, out_path, prov)
     extra = f" ({'; '.join(notes)})" if notes else ""
-    return f"wrote {', '.join(f'{k} = {v:.5g}' for k, v in updates.items())} to {path}{extra}"
+    return f"wrote {', '.join(f'{k} = {v:.5g}' for k, v in updates.items())} to {path}{extra}", path
 
 
 # -- synthetic trials with a hidden effect ---------------------------------------------------------

@@ -140,7 +140,8 @@ def _read_table(path: Path) -> tuple[list[str], np.ndarray]:
     return header, data
 
 
-def load_maneuver_csv(path: Path, vessel: VesselSpec, columns: dict[str, str] | None = None) -> ManeuverData:
+def load_maneuver_csv(path: Path, vessel: VesselSpec, columns: dict[str, str] | None = None,
+                      factors: dict[str, float] | None = None) -> ManeuverData:
     """Read a maneuver log; with ``columns=None`` a ``seafmu run`` results.csv is recognised.
 
     ``columns`` maps logical names to CSV headers (only the ones that differ from the defaults):
@@ -150,6 +151,8 @@ def load_maneuver_csv(path: Path, vessel: VesselSpec, columns: dict[str, str] | 
     the vessel's thruster matrix (the true force on the hull) when they exist, else from
     ``allocator.tau_alloc_*`` (the allocated command: ignores thruster lag and saturation);
     ``ManeuverData.source`` says which. Every problem found is reported, one line each.
+    ``factors`` (logical name -> factor) converts columns logged in other units to SI (deg -> rad);
+    ``trial.maneuver_factors`` derives them from a trial's column units.
     """
     path = Path(path)
     header, table = _read_table(path)
@@ -157,16 +160,19 @@ def load_maneuver_csv(path: Path, vessel: VesselSpec, columns: dict[str, str] | 
     d = vessel.dof
     index = {h: i for i, h in enumerate(header)}
     problems: list[str] = []
+    found: dict[str, int] = {}
 
     def find(key: str, candidates: list[str], required: bool = True) -> int | None:
         if key in columns:
             if columns[key] in index:
-                return index[columns[key]]
+                found[key] = index[columns[key]]
+                return found[key]
             problems.append(f"column '{columns[key]}' (given for '{key}') is not in the file")
             return None
         for c in candidates:
             if c in index:
-                return index[c]
+                found[key] = index[c]
+                return found[key]
         if required:
             problems.append(f"missing column for '{key}' (looked for {', '.join(candidates)})")
         return None
@@ -223,6 +229,9 @@ def load_maneuver_csv(path: Path, vessel: VesselSpec, columns: dict[str, str] | 
     if problems:
         raise TrialError("\n".join(f"{path}: {p}" for p in problems))
 
+    for key, factor in (factors or {}).items():  # to SI, before any column is combined
+        if key in found:
+            table[:, found[key]] *= factor
     tau_raw = table[:, tau_cols]
     tau = tau_raw @ B.T if tau_cols is i_thr else tau_raw
     return ManeuverData(
@@ -273,6 +282,7 @@ def simulate_maneuver(
     attitude_gains: tuple[float, float] = (1000.0, 800.0),
     commands: np.ndarray | None = None,
     substep: float = 0.01,
+    plant_params: dict[str, float] | None = None,
 ) -> tuple[ManeuverData, np.ndarray]:
     """A noise-free maneuver trial from seafmu's own plant (``PlantBlock``, noise_scale = 0).
 
@@ -280,8 +290,10 @@ def simulate_maneuver(
     allocated to the thrusters by the pseudo-inverse; for 6 DOF a PD term on roll and pitch
     (``attitude_gains`` = (K_p, K_d) in N m/rad, N m s/rad) keeps the angles moderate, as an
     ROV's attitude control would in a sea trial. ``commands`` (n, m) replays given shaft-speed
-    commands open loop instead (the close-the-loop check). Returns the log (tau = B T from the
-    plant's true thrusts) and the commands used, one row per step.
+    commands open loop instead (the close-the-loop check). ``plant_params`` are further
+    PlantBlock parameters (e.g. ``current_speed``, ``current_direction``: an environment the
+    identified model may lack). Returns the log (tau = B T from the plant's true thrusts) and the
+    commands used, one row per step.
     """
     d, m = vessel.dof, vessel.thrusters.count
     steps = round(duration / dt)
@@ -296,7 +308,7 @@ def simulate_maneuver(
         amp = default_amplitude(vessel) if amplitude is None else np.asarray(amplitude, dtype=float)
         tau_d = multisine(t, d, fmax, np.random.default_rng(seed)) * amp
         P = allocation_matrix(B)
-    plant = PlantBlock(vessel, {"noise_scale": 0.0, "substep": min(substep, dt)})
+    plant = PlantBlock(vessel, {**(plant_params or {}), "noise_scale": 0.0, "substep": min(substep, dt)})
     names = PlantBlock.interface(vessel).output_names()  # outputs located by name, not position
     i_eta = [names.index(n) for n in vessel.eta_names]
     i_nu = [names.index(n) for n in vessel.nu_names]
@@ -321,6 +333,21 @@ def simulate_maneuver(
         source=f"simulated by PlantBlock ({vessel.name}, {duration:g} s, dt {dt:g} s, seed {seed})",
     )
     return data, cmds
+
+
+def write_maneuver_csv(data: ManeuverData, path: Path, provenance: str = "") -> Path:
+    """The log as a CSV that ``load_maneuver_csv`` reads without a column map (SI units):
+    time, eta names, nu names, tau_X ... (one '#' provenance line first)."""
+    d = data.dof
+    names = ["time", *ETA_NAMES[d], *NU_NAMES[d], *(f"tau_{n}" for n in TAU_NAMES[d])]
+    table = np.column_stack([data.t, data.eta, data.nu, data.tau])
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "w", newline="") as fh:
+        fh.write(f"# {provenance or data.source}\n")
+        fh.write(",".join(names) + "\n")
+        np.savetxt(fh, table, delimiter=",", fmt="%.10g")
+    return path
 
 
 def add_sensor_noise(data: ManeuverData, vessel: VesselSpec, scale: float, seed: int = 0) -> ManeuverData:
@@ -656,6 +683,11 @@ class _Simulator:
     between samples (RK4 stages use tau at t, the midpoint and t + h). Each segment restarts
     from the measured (smoothed) state, so a fit is not dominated by drift from one start.
     Same equations as ``VesselModel.derivative`` without current (checked by a test).
+
+    Diagnosis extensions (``run(..., F0=, vc=)``): a constant generalised force F0 added to tau,
+    and a constant NED current vc = (north, east): damping and the added-mass Coriolis terms then
+    act on nu_r = nu - R^T [vc; 0] as in the plant (C_RB(nu) nu + C_A(nu_r) nu_r), with R from the
+    simulated roll/pitch and the *measured* heading (``psi``, set by ``_sim_setup``).
     """
 
     def __init__(self, vessel: VesselSpec, t: np.ndarray, tau: np.ndarray, x_meas: np.ndarray,
@@ -672,16 +704,45 @@ class _Simulator:
         self.tau_mid = 0.5 * (self.tau[:, :-1] + self.tau[:, 1:])
         self.x0 = x_meas[starts]  # (S, nx)
         self.idx = idx
+        self.M_RB = _sym(np.asarray(vessel.M_RB, dtype=float))
+        self.psi: np.ndarray | None = None  # (S, L+1) measured heading (unwrapped), for a current
+        self.psi_mid: np.ndarray | None = None  # (S, L)
 
-    def _f(self, x: np.ndarray, tau: np.ndarray, W: np.ndarray) -> np.ndarray:
-        """x_dot; nu_dot = [tau - g, nu (x) nu, nu, |nu| nu] @ W (one matmul per parameter set)."""
+    def _current(self, vc: np.ndarray, psi: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """Body-frame current nu_c (K, S, d) from the NED current vc (K, 2) at heading psi (1, S)."""
+        vn, ve = vc[:, 0, None], vc[:, 1, None]
+        cs, sn = np.cos(psi), np.sin(psi)
+        out = np.zeros((*x.shape[:-1], self.d))
+        if self.d == 3:
+            out[..., 0] = cs * vn + sn * ve
+            out[..., 1] = -sn * vn + cs * ve
+            return out
+        phi, th = x[..., 0], x[..., 1]
+        cp, sp, ct, st = np.cos(phi), np.sin(phi), np.cos(th), np.sin(th)
+        out[..., 0] = cs * ct * vn + sn * ct * ve
+        out[..., 1] = (-sn * cp + cs * st * sp) * vn + (cs * cp + sp * st * sn) * ve
+        out[..., 2] = (sn * sp + cs * cp * st) * vn + (-cs * sp + st * sn * cp) * ve
+        return out
+
+    def _f(self, x: np.ndarray, tau: np.ndarray, W: np.ndarray, vc: np.ndarray | None = None,
+           psi: np.ndarray | None = None) -> np.ndarray:
+        """x_dot; nu_dot = [tau - g, nu (x) nu, nu, |nu| nu] @ W (one matmul per parameter set).
+
+        With a current: [tau - g, nu (x) nu, nu_r (x) nu_r, nu_r, |nu_r| nu_r] @ W (split Coriolis).
+        """
         if self.d == 6:
             phi, th, nu = x[..., 0], x[..., 1], x[..., 2:]
             force = tau - self.g(phi, th)
         else:
             nu, force = x, np.broadcast_to(tau, x.shape)
         nn = (nu[..., :, None] * nu[..., None, :]).reshape(*nu.shape[:-1], -1)
-        nu_dot = np.matmul(np.concatenate([force, nn, nu, np.abs(nu) * nu], axis=-1), W)
+        if vc is None or psi is None:
+            nu_dot = np.matmul(np.concatenate([force, nn, nu, np.abs(nu) * nu], axis=-1), W)
+        else:
+            nur = nu - self._current(vc, psi, x)
+            nnr = (nur[..., :, None] * nur[..., None, :]).reshape(*nur.shape[:-1], -1)
+            nu_dot = np.matmul(np.concatenate([np.broadcast_to(force, nu.shape), nn, nnr, nur,
+                                               np.abs(nur) * nur], axis=-1), W)
         if self.d == 3:
             return nu_dot
         p, q, r = nu[..., 3], nu[..., 4], nu[..., 5]
@@ -690,26 +751,41 @@ class _Simulator:
         th_dot = cp * q - sp * r
         return np.concatenate([phi_dot[..., None], th_dot[..., None], nu_dot], axis=-1)
 
-    def run(self, M: np.ndarray, DL: np.ndarray, DQ: np.ndarray, x0: np.ndarray | None = None) -> np.ndarray:
+    def run(self, M: np.ndarray, DL: np.ndarray, DQ: np.ndarray, x0: np.ndarray | None = None,
+            F0: np.ndarray | None = None, vc: np.ndarray | None = None) -> np.ndarray:
         """Simulated states (K, S, L+1, nx) for K parameter sets (M, DL, DQ each (K, d, d));
-        ``x0`` (K, S, nx) replaces the measured segment starts."""
+        ``x0`` (K, S, nx) replaces the measured segment starts; ``F0`` (K, d) constant force,
+        ``vc`` (K, 2) NED current (see the class docstring)."""
         K = M.shape[0]
-        W = np.empty((K, self.d + self.d**2 + 2 * self.d, self.d))
+        cur = vc is not None and self.psi is not None and self.psi_mid is not None
+        d = self.d
+        W = np.empty((K, d + (2 if cur else 1) * d**2 + 2 * d, d))
+        T_RB = coriolis_tensor(self.M_RB) if cur else None
         for k in range(K):
             Ms = _sym(M[k])
             Minv = np.linalg.inv(Ms)
-            W[k] = np.hstack([Minv, -Minv @ coriolis_tensor(Ms), -Minv @ DL[k], -Minv @ DQ[k]]).T
+            if T_RB is not None:  # C_RB(nu) nu + C_A(nu_r) nu_r: Coriolis is linear in M
+                cor = [-Minv @ T_RB, -Minv @ coriolis_tensor(Ms - self.M_RB)]
+            else:
+                cor = [-Minv @ coriolis_tensor(Ms)]
+            W[k] = np.hstack([Minv, *cor, -Minv @ DL[k], -Minv @ DQ[k]]).T
         x = np.broadcast_to(self.x0 if x0 is None else x0, (K, *self.x0.shape)).copy()
         out = np.empty((K, *self.x0.shape[:1], self.length + 1, self.x0.shape[-1]))
         out[:, :, 0] = x
         h = self.h
+        f0 = 0.0 if F0 is None else np.asarray(F0, dtype=float)[:, None, :]
+        vck = np.asarray(vc, dtype=float) if cur and vc is not None else None
+        no_psi = (None, None, None)
         with np.errstate(all="ignore"):
             for k in range(self.length):
-                t0, tm, t1 = self.tau[None, :, k], self.tau_mid[None, :, k], self.tau[None, :, k + 1]
-                k1 = self._f(x, t0, W)
-                k2 = self._f(x + 0.5 * h * k1, tm, W)
-                k3 = self._f(x + 0.5 * h * k2, tm, W)
-                k4 = self._f(x + h * k3, t1, W)
+                t0, tm, t1 = (self.tau[None, :, k] + f0, self.tau_mid[None, :, k] + f0,
+                              self.tau[None, :, k + 1] + f0)
+                p0, pm, p1 = no_psi if vck is None else (
+                    self.psi[None, :, k], self.psi_mid[None, :, k], self.psi[None, :, k + 1])  # type: ignore[index]
+                k1 = self._f(x, t0, W, vck, p0)
+                k2 = self._f(x + 0.5 * h * k1, tm, W, vck, pm)
+                k3 = self._f(x + 0.5 * h * k2, tm, W, vck, pm)
+                k4 = self._f(x + h * k3, t1, W, vck, p1)
                 x = x + (h / 6.0) * (k1 + 2.0 * (k2 + k3) + k4)
                 x = np.where(np.abs(x) < 1e6, x, np.nan)  # a diverging model stays NaN
                 out[:, :, k + 1] = x
@@ -726,6 +802,7 @@ class _SimSetup:
     meas: np.ndarray  # (S, L+1, d) measured nu on the simulation grid
     mask: np.ndarray  # (S, L+1) samples that exist and are compared (not the start)
     scale: np.ndarray  # (d,) spread of measured nu, normalises residuals per DOF
+    t: np.ndarray | None = None  # (n_grid,) times of the simulation grid (for plots)
 
 
 def _sim_setup(vessel: VesselSpec, prep: _Prepared, i0: int, i1: int, segment: float, sim_dt: float,
@@ -744,26 +821,46 @@ def _sim_setup(vessel: VesselSpec, prep: _Prepared, i0: int, i1: int, segment: f
     # tau at the RK4 midpoints from the full-rate log (a logged sample when the stride is even)
     t_mid = 0.5 * (t[sim.idx[:, :-1]] + t[sim.idx[:, 1:]])
     sim.tau_mid = np.stack([np.interp(t_mid, prep.t, prep.tau[:, j]) for j in range(d)], axis=-1)
+    psi = np.unwrap(prep.eta[:, d - 1])  # yaw: last eta entry (3 and 6 DOF)
+    sim.psi = psi[sel][sim.idx]
+    sim.psi_mid = np.interp(t_mid, prep.t, psi)
     meas = prep.nu_raw[sel][sim.idx]
     mask = sim.valid.copy()
     mask[:, 0] = False
     if scale is None:
         scale = np.maximum(prep.nu_raw[i0:i1].std(axis=0), 1e-9)
-    return _SimSetup(sim, meas, mask, scale)
+    return _SimSetup(sim, meas, mask, scale, t)
+
+
+def _one(effect: dict[str, np.ndarray] | None) -> dict[str, np.ndarray]:
+    """Effect terms of one parameter set as the batched simulator takes them (K = 1)."""
+    return {k: np.asarray(v, dtype=float)[None] for k, v in (effect or {}).items()}
+
+
+def _trace(setup: _SimSetup, M: np.ndarray, DL: np.ndarray, DQ: np.ndarray, run: str,
+           effect: dict[str, np.ndarray] | None = None) -> dict[str, Any]:
+    """Measured and simulated nu on the simulation grid, every sample once, for the overlay and
+    residual plots; ``restarts`` are the segment starts (the simulation restarts there)."""
+    x = setup.sim.run(M[None], DL[None], DQ[None], **_one(effect))[0]
+    d = setup.meas.shape[-1]
+    mask = setup.mask
+    assert setup.t is not None
+    return {"run": run, "t": setup.t[setup.sim.idx][mask], "y": setup.meas[mask], "yhat": x[..., -d:][mask],
+            "restarts": setup.t[setup.sim.idx[:, 0]]}
 
 
 def _sim_residual(setup: _SimSetup, M: np.ndarray, DL: np.ndarray, DQ: np.ndarray,
-                  x0: np.ndarray | None = None) -> np.ndarray:
+                  x0: np.ndarray | None = None, **effect: np.ndarray) -> np.ndarray:
     """Normalised nu residuals (K, S, L+1, d); NaN where a simulation diverged."""
-    x = setup.sim.run(M, DL, DQ, x0)
+    x = setup.sim.run(M, DL, DQ, x0, **effect)
     d = setup.meas.shape[-1]
     return (x[..., -d:] - setup.meas[None]) / setup.scale
 
 
-def _nrmse_per_dof(setup: _SimSetup, M: np.ndarray, DL: np.ndarray,
-                   DQ: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _nrmse_per_dof(setup: _SimSetup, M: np.ndarray, DL: np.ndarray, DQ: np.ndarray,
+                   effect: dict[str, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Per-DOF NRMSE ‖y − ŷ‖/‖y − ȳ‖ of simulated nu, and the flat normalised residual."""
-    r = _sim_residual(setup, M[None], DL[None], DQ[None])[0]
+    r = _sim_residual(setup, M[None], DL[None], DQ[None], **_one(effect))[0]
     mask = setup.mask
     y = setup.meas[mask]
     res = r[mask] * setup.scale
@@ -899,6 +996,8 @@ def identify_maneuver(
     segment: float = 30.0,
     sim_dt: float = 0.05,
     max_nfev: int = 40,
+    effect: str | None = None,
+    oe_start: dict[str, float] | None = None,
 ) -> FitResult:
     """Identify M, D_L, D_Q from a maneuver log (see the module docstring for the methods).
 
@@ -910,7 +1009,13 @@ def identify_maneuver(
     obtained (``_prepare``). Output error: ``oe_added_mass`` also fits the added-mass diagonal;
     ``oe_base`` = "vessel" keeps every other entry from the vessel file, "ls" from the LS fit.
     ``segment`` s: restart length of the simulations, on a grid of about ``sim_dt`` s.
+    ``effect`` (output error only): a diagnosis extension, "current" (NED current fitted, damping
+    on nu - nu_c) or "constant_force" (a force per DOF); ``oe_start``: start values by name.
     """
+    if effect is not None:
+        effect_names(effect, vessel.dof)  # validates the name
+        if method != "output_error":
+            raise ValueError("an effect extension is fitted by output error (method='output_error')")
     if method not in METHODS:
         raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
     if coriolis not in CORIOLIS:
@@ -1030,7 +1135,7 @@ def identify_maneuver(
         method_label = f"maneuver LS ({ls.note})"
     else:
         (M, D_L, D_Q, names, values, cov, ci, corr, n_res, oe_info) = _output_error(
-            vessel, prep, fit_setup, ls, plant, oe_added_mass, oe_base, max_nfev, warnings)
+            vessel, prep, fit_setup, ls, plant, oe_added_mass, oe_base, max_nfev, warnings, effect, oe_start)
         fitted = set(names)
         extras.update(oe_info)
         method_label = (f"maneuver output error (diagonal D_L, D_Q{', added mass' if oe_added_mass else ''}; "
@@ -1038,15 +1143,21 @@ def identify_maneuver(
                         f"{'vessel file' if oe_base == 'vessel' else 'LS fit'})")
 
     # simulation NRMSE (same for both methods)
-    nr_fit, res_fit = _nrmse_per_dof(fit_setup, M, D_L, D_Q)
+    eff = extras.get("effect_terms") if method != "ls" else None
+    nr_fit, res_fit = _nrmse_per_dof(fit_setup, M, D_L, D_Q, eff)
     if val_setup is not None and validation_fraction > 0:
-        nr_val, _ = _nrmse_per_dof(val_setup, M, D_L, D_Q)
+        nr_val, _ = _nrmse_per_dof(val_setup, M, D_L, D_Q, eff)
+        extras["n_validation"] = int(val_setup.mask.sum() * d)
         nrmse_validation = float(np.mean(nr_val))
         extras["nrmse_validation_per_dof"] = dict(zip(nu_names, nr_val.tolist(), strict=True))
     else:
         nrmse_validation = float("nan")
     nrmse_fit = float(np.mean(nr_fit))
     extras["nrmse_fit_per_dof"] = dict(zip(nu_names, nr_fit.tolist(), strict=True))
+    extras["nu_names"] = list(nu_names)
+    extras["predictions"] = [_trace(fit_setup, M, D_L, D_Q, "fit", eff)]
+    if val_setup is not None and validation_fraction > 0:
+        extras["predictions"].append(_trace(val_setup, M, D_L, D_Q, "validation", eff))
     if not np.all(np.isfinite(res_fit)):
         warnings.append("the fitted model diverges when simulated against the trial (unstable)")
         res_ok = np.nan_to_num(res_fit, nan=1e3)
@@ -1088,6 +1199,9 @@ def identify_maneuver(
 
 
 def _is_diag(name: str) -> bool:
+    """True for a diagonal matrix entry 'X[i,i]' (effect parameters are not matrix entries)."""
+    if "[" not in name or "," not in name:
+        return False
     i, j = name[name.index("[") + 1 : -1].split(",")
     return i == j
 
@@ -1098,8 +1212,13 @@ def _rel_halfwidth(ci: tuple[float, float], value: float) -> float:
 
 def _output_error(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | None, ls: _LSResult,
                   plant: dict[str, np.ndarray], added_mass: bool, base: str, max_nfev: int,
-                  warnings: list[str]) -> tuple:
-    """Diagonal D_L, D_Q (and added mass) by simulation error, started from the LS estimate."""
+                  warnings: list[str], effect: str | None = None,
+                  start: dict[str, float] | None = None) -> tuple:
+    """Diagonal D_L, D_Q (and added mass) by simulation error, started from the LS estimate.
+
+    ``effect`` adds a diagnosis extension's parameters (``effect_names``), started at "absent";
+    ``start`` (name -> value, e.g. a baseline fit's) replaces the LS start where it has a value.
+    """
     if setup is None:
         raise TrialError("too few samples for an output-error fit")
     d = vessel.dof
@@ -1117,12 +1236,21 @@ def _output_error(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | None, 
         names += [f"M[{i},{i}]" for i in range(d)]
         mdiag = np.diag(ls.M) if ls_ok_M else np.diag(plant["M"])
         p0 += list(np.where(mdiag > 0, mdiag, np.diag(plant["M"])))
-    p0 = np.array(p0, dtype=float)
+    if start:
+        p0 = [float(start.get(nm, v)) for nm, v in zip(names, p0, strict=True)]
+    e0 = len(names)  # effect parameters follow the model's
+    enames = effect_names(effect, d)
+    names += enames
+    p0 = np.array([*p0, *([0.0] * len(enames))], dtype=float)
     nu_abs = np.sqrt(np.mean(prep.nu_raw**2, axis=0))
     # parameter scales: a linear coefficient is worth its quadratic one times the rms speed
     sQ = np.maximum(np.abs(p0[d : 2 * d]), 1e-3 * np.diag(plant["M"]))
     sL = np.maximum(np.abs(p0[:d]), sQ * nu_abs + 1e-6)
-    scales = [*sL, *sQ] + ([*np.abs(p0[2 * d :])] if added_mass else [])
+    scales = [*sL, *sQ] + ([*np.abs(p0[2 * d : 3 * d])] if added_mass else [])
+    if effect == "constant_force":  # a few % of the force each DOF sees
+        scales += list(0.05 * np.maximum(prep.tau.std(axis=0), 1e-3))
+    elif effect == "current":
+        scales += [0.1, 0.1]  # m/s
     scales = np.maximum(np.array(scales), 1e-9)
     # initial state of every segment is estimated too (multiple shooting without continuity):
     # restarting from a noisy measured state biases the damping (measured: -7 % in sway)
@@ -1142,14 +1270,22 @@ def _output_error(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | None, 
         DL[:, ii, ii] = P[:, :d]
         DQ[:, ii, ii] = P[:, d : 2 * d]
         if added_mass:
-            M[:, ii, ii] = P[:, 2 * d :]
+            M[:, ii, ii] = P[:, 2 * d : 3 * d]
         return M, DL, DQ
+
+    def terms(P: np.ndarray) -> dict[str, np.ndarray]:
+        """The effect's terms for the simulator: F0 (K, d) or vc (K, 2)."""
+        if effect == "constant_force":
+            return {"F0": P[:, e0 : e0 + d]}
+        if effect == "current":
+            return {"vc": P[:, e0 : e0 + 2]}
+        return {}
 
     def residuals(Z: np.ndarray) -> np.ndarray:
         """Flat residual vectors for several scaled parameter sets (K, N)."""
         P = Z[:, :npar] * scales
         X0 = Z[:, npar:].reshape(-1, S, nx) * x_scale
-        r = _sim_residual(setup, *mats(P), X0)
+        r = _sim_residual(setup, *mats(P), X0, **terms(P))
         flat = r[:, mask]  # (K, N, d)
         flat = np.where(np.isfinite(flat), flat, 1e3)
         return flat.reshape(P.shape[0], -1)
@@ -1184,12 +1320,13 @@ def _output_error(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | None, 
     # start from the LS diagonal, unless the vessel file's values simulate the trial better
     # (a poorly exciting log gives an LS model that may not even be stable)
     p_file = np.concatenate([np.diag(plant["D_L"]), np.diag(plant["D_Q"])]
-                            + ([np.diag(plant["M"])] if added_mass else []))
+                            + ([np.diag(plant["M"])] if added_mass else []) + [np.zeros(len(enames))])
     x0z = (x0_meas / x_scale).ravel()
     z_ls, z_file = np.concatenate([p0 / scales, x0z]), np.concatenate([p_file / scales, x0z])
     costs = np.sum(residuals(np.vstack([z_ls, z_file])) ** 2, axis=1)
     z0 = z_ls if costs[0] <= costs[1] else z_file
-    start_from = "LS estimate" if costs[0] <= costs[1] else "vessel file (LS start simulated worse)"
+    first = "given start" if start else "LS estimate"
+    start_from = first if costs[0] <= costs[1] else f"vessel file ({first} simulated worse)"
     p0 = z0[:npar] * scales
     # MINPACK LM: its own QR, not an SVD of the tall Jacobian through a multi-threaded BLAS, which
     # is 40x slower than single-threaded on a busy 2-core machine
@@ -1207,5 +1344,21 @@ def _output_error(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | None, 
     M, DL, DQ = (a[0] for a in mats(p[None]))
     info = {"oe_nfev": int(sol.nfev), "oe_cost": float(sol.cost), "oe_start_from": start_from,
             "oe_start": dict(zip(names, p0.tolist(), strict=True)), "ci_inflation": infl,
-            "oe_status": sol.message}
+            "oe_status": sol.message, "effect": effect,
+            "effect_terms": {k: v[0] for k, v in terms(p[None]).items()}}
     return M, DL, DQ, names, p, cov, ci, corr, r.size, info
+
+
+# Diagnosis extensions of a maneuver fit (catalogue names; docs/maneuver_identification.md).
+MANEUVER_EFFECTS = ("current", "constant_force")
+
+
+def effect_names(effect: str | None, d: int) -> list[str]:
+    """Parameter names a maneuver extension adds: the NED current, or a force per DOF."""
+    if effect is None:
+        return []
+    if effect == "current":
+        return ["v_c_north", "v_c_east"]
+    if effect == "constant_force":
+        return [f"F_0[{n}]" for n in TAU_NAMES[d]]
+    raise ValueError(f"maneuver effect must be one of {', '.join(MANEUVER_EFFECTS)}, got {effect!r}")

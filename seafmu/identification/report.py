@@ -127,6 +127,80 @@ def plot_residuals(trial: Trial, base: FitResult, ext: FitResult | None, path: P
     plt.close(fig)
 
 
+_NU_UNIT = {"u": "m/s", "v": "m/s", "w": "m/s", "p": "rad/s", "q": "rad/s", "r": "rad/s"}
+
+
+def _maneuver_traces(fit: FitResult) -> list[dict[str, Any]]:
+    return list(fit.extras.get("predictions") or [])
+
+
+def plot_maneuver_overlay(trial: Trial, base: FitResult, other: FitResult | None, path: Path,
+                          label: str = "baseline", other_label: str = "") -> None:
+    """Measured vs simulated nu per DOF over the whole log (fitted part, then held-out part).
+
+    The simulation restarts from the measured state at every segment start (thin grey lines), as
+    the maneuver NRMSE does, so the overlay shows what the NRMSE measures.
+    """
+    traces = _maneuver_traces(base)
+    names = base.extras.get("nu_names") or [f"nu{j}" for j in range(np.asarray(traces[0]["y"]).shape[1])]
+    others = _maneuver_traces(other) if other is not None else []
+    d = len(names)
+    fig, axes = plt.subplots(d, 1, figsize=(10, 1.7 * d + 0.8), sharex=True, squeeze=False)
+    for j, name in enumerate(names):
+        ax = axes[j, 0]
+        for i, tr in enumerate(traces):
+            t, y, yh = tr["t"], np.asarray(tr["y"])[:, j], np.asarray(tr["yhat"])[:, j]
+            ax.plot(t, y, "k.", ms=1.5, label="measured" if i == 0 else None)
+            ax.plot(t, yh, "C0-", lw=0.9, label=label if i == 0 else None)
+            for t0 in tr["restarts"]:
+                ax.axvline(t0, color="0.85", lw=0.5, zorder=0)
+        for i, tr in enumerate(others):
+            ax.plot(tr["t"], np.asarray(tr["yhat"])[:, j], "C3--", lw=0.9,
+                    label=other_label if i == 0 else None)
+        if len(traces) > 1:
+            ax.axvline(traces[1]["restarts"][0], color="C2", lw=1.2,
+                       label="held-out from here" if j == 0 else None)
+        ax.set_ylabel(f"{name} [{_NU_UNIT.get(name, '')}]")
+        ax.grid(True, alpha=0.3)
+        if j == 0:
+            ax.legend(fontsize=7, ncol=4, loc="upper right")
+    axes[-1, 0].set_xlabel("time [s] (grey: simulation restarts from the measured state)")
+    fig.suptitle(f"{trial.name}: measured vs simulated body velocities")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def plot_maneuver_residuals(trial: Trial, base: FitResult, other: FitResult | None, path: Path,
+                            label: str = "baseline", other_label: str = "") -> None:
+    """Residual (measured - simulated) nu per DOF against time, fitted and held-out parts."""
+    traces = _maneuver_traces(base)
+    names = base.extras.get("nu_names") or [f"nu{j}" for j in range(np.asarray(traces[0]["y"]).shape[1])]
+    others = _maneuver_traces(other) if other is not None else []
+    d = len(names)
+    fig, axes = plt.subplots(d, 1, figsize=(10, 1.5 * d + 0.8), sharex=True, squeeze=False)
+    for j, name in enumerate(names):
+        ax = axes[j, 0]
+        for i, tr in enumerate(traces):
+            r = np.asarray(tr["y"])[:, j] - np.asarray(tr["yhat"])[:, j]
+            ax.plot(tr["t"], r, "C0-" if tr["run"] == "fit" else "C0:", lw=0.7,
+                    label=label if i == 0 else None)
+        for i, tr in enumerate(others):
+            r = np.asarray(tr["y"])[:, j] - np.asarray(tr["yhat"])[:, j]
+            ax.plot(tr["t"], r, "C3-" if tr["run"] == "fit" else "C3:", lw=0.7,
+                    label=other_label if i == 0 else None)
+        ax.axhline(0, color="k", lw=0.5)
+        ax.set_ylabel(f"{name} [{_NU_UNIT.get(name, '')}]")
+        ax.grid(True, alpha=0.3)
+        if j == 0:
+            ax.legend(fontsize=7, loc="upper right")
+    axes[-1, 0].set_xlabel("time [s] (solid: fitted part, dotted: held-out)")
+    fig.suptitle(f"{trial.name}: simulation residual (measured - simulated nu)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
 def regressors(trial: Trial, base: FitResult) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """Baseline residual against each candidate regressor (fitted runs), for the scatter plots."""
     out: dict[str, list[tuple[np.ndarray, np.ndarray]]] = {}
@@ -249,7 +323,12 @@ def write_identify_report(ident: Identification, out: Path) -> Path:
     out.mkdir(parents=True, exist_ok=True)
     trial, fit = ident.trial, ident.fit
     lines = _header(trial, "Identification")
-    figs = _figures(trial, fit, None, out, "")
+    # A maneuver's alternative method (LS vs output error) is drawn over the baseline fit.
+    alt_name, alt = next(iter(ident.alternatives.items()), ("", None))
+    if trial.kind == "maneuver" and alt is not None:
+        figs = _figures(trial, fit, alt, out, "", label=alt_name)
+    else:
+        figs = _figures(trial, fit, None, out, "")
     lines += ["## Fit", "", *fit_table(fit, trial), ""]
     for name, alt in ident.alternatives.items():
         lines += [f"## Alternative: {name}", "", *fit_table(alt, trial)]
@@ -271,6 +350,9 @@ def write_diagnosis_report(diag: Diagnosis, out: Path) -> Path:
     ext = diag.extended if diag.cause else None
     effect = diag.effect
     lines = _header(trial, "Diagnosis")
+    if _baseline_name(trial, diag.baseline) != trial.baseline:
+        lines += ["- the diagnosis baseline is the output-error fit: the extensions are output-error fits, "
+                  "and an LS baseline would credit the method, not the effect", ""]
     j = diag.to_json()
     lines += ["## Answer", "", f"**Cause: `{effect}`** — {diag.evidence}", ""]
     if diag.cause:
@@ -317,9 +399,17 @@ def write_diagnosis_report(diag: Diagnosis, out: Path) -> Path:
     return path
 
 
-def _figures(trial: Trial, base: FitResult, ext: FitResult | None, out: Path, effect: str) -> list[Path]:
+def _figures(trial: Trial, base: FitResult, ext: FitResult | None, out: Path, effect: str,
+             label: str = "baseline") -> list[Path]:
     figs = []
-    if trial.kind == "static":
+    if trial.kind == "maneuver":
+        if _maneuver_traces(base):
+            other = f"+ {effect}" if effect and ext is not None else label
+            first = f"baseline ({_baseline_name(trial, base)})"
+            plot_maneuver_overlay(trial, base, ext, out / "overlay.png", first, other)
+            plot_maneuver_residuals(trial, base, ext, out / "residuals.png", first, other)
+            figs += [out / "overlay.png", out / "residuals.png"]
+    elif trial.kind == "static":
         plot_static(trial, base, ext, out / "fit.png", effect)
         figs.append(out / "fit.png")
     elif trial.kind != "maneuver" and "predictions" in base.extras:
@@ -327,6 +417,13 @@ def _figures(trial: Trial, base: FitResult, ext: FitResult | None, out: Path, ef
         plot_residuals(trial, base, ext, out / "residuals.png", effect)
         figs += [out / "overlay.png", out / "residuals.png"]
     return figs
+
+
+def _baseline_name(trial: Trial, fit: FitResult) -> str:
+    """The baseline actually fitted (a maneuver diagnosis uses output error whatever the trial says)."""
+    if trial.kind == "maneuver" and fit.method.startswith("maneuver output error"):
+        return "output_error"
+    return trial.baseline
 
 
 def summary_lines(obj: Identification | Diagnosis) -> list[str]:
@@ -351,7 +448,7 @@ def summary_lines(obj: Identification | Diagnosis) -> list[str]:
         return lines
     d = obj
     b = d.baseline
-    lines = [f"{trial.label}: baseline {trial.baseline}",
+    lines = [f"{trial.label}: baseline {_baseline_name(trial, b)}",
              f"  baseline: {params(b)}; held-out NRMSE {_g(b.nrmse_validation)}, AIC {_g(b.aic, 6)}",
              f"  cause: {d.effect} — {d.evidence}"]
     if d.cause and d.cause.fit:

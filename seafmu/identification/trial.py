@@ -241,6 +241,42 @@ def _expected_units(tm: TrialModel, table: str | None) -> dict[str, tuple[tuple[
 
 _OPTIONAL = {"rate", "accel"}
 
+# Maneuver column roles (names of load_maneuver_csv) and the SI unit each must convert to.
+_M_POS, _M_ANG = ("north", "east", "down"), ("roll", "pitch", "yaw")
+_M_LIN, _M_ROT = ("u", "v", "w"), ("p", "q", "r")
+MANEUVER_ROLES = ("time, north, east, down, roll, pitch, yaw, u, v, w, p, q, r, thrust_<i>, "
+                  "tau_X, tau_Y, tau_Z, tau_K, tau_M, tau_N, u_dot ... r_dot")
+
+
+def _maneuver_role(role: str) -> tuple[tuple[str, ...], str] | None:
+    """(allowed SI units, meaning) of a maneuver column role, or None if it is not one."""
+    if role == "time":
+        return ("s",), "time"
+    if role in _M_POS:
+        return ("m",), f"position {role}"
+    if role in _M_ANG:
+        return ("rad",), f"angle {role}"
+    if role in _M_LIN:
+        return ("m/s",), f"velocity {role}"
+    if role in _M_ROT:
+        return ("rad/s",), f"angular rate {role}"
+    if role.startswith("thrust_") and role[7:].isdigit() and int(role[7:]) >= 1:
+        return ("N",), f"thrust {role}"
+    if role in ("tau_X", "tau_Y", "tau_Z"):
+        return ("N",), f"force {role}"
+    if role in ("tau_K", "tau_M", "tau_N"):
+        return ("N.m",), f"moment {role}"
+    if role.endswith("_dot") and role[:-4] in _M_LIN:
+        return ("m/s^2",), f"acceleration {role}"
+    if role.endswith("_dot") and role[:-4] in _M_ROT:
+        return ("rad/s^2",), f"angular acceleration {role}"
+    return None
+
+
+def maneuver_factors(trial: Trial) -> dict[str, float]:
+    """role -> factor to SI for the maneuver columns given with a unit (deg -> rad, kN -> N, ...)."""
+    return {role: _unit_si(unit)[1] for role, unit in trial.units.items() if _unit_si(unit)[1] != 1.0}
+
 
 def _read_csv(path: Path) -> tuple[list[str], list[list[str]], list[int], list[str]]:
     """Header, rows, the file line number of each row, and the leading '#' comment lines."""
@@ -332,9 +368,25 @@ def _resolve(tm: TrialModel, path: Path) -> Trial:
             raise fail(where, f"no such file {f}")
 
     if tm.kind == "maneuver":
-        cols = {}
+        cols: dict[str, str] = {}
+        m_units: dict[str, str] = {}
         for role, spec in tm.columns.items():
-            cols[role] = spec if isinstance(spec, str) else spec.column
+            allowed_m = _maneuver_role(role)
+            if allowed_m is None:
+                raise fail(f"columns.{role}",
+                           f"not a column role of a maneuver trial (roles: {MANEUVER_ROLES})")
+            if isinstance(spec, str):  # a bare column name: SI units (as seafmu run logs are)
+                cols[role] = spec
+                continue
+            si_units, meaning = allowed_m
+            try:
+                si, _ = _unit_si(spec.unit)
+            except UnitError as exc:
+                raise fail(f"columns.{role}.unit", str(exc)) from None
+            if si not in si_units:
+                raise fail(f"columns.{role}.unit", f"'{spec.unit}' is {si}, but the {meaning} of a maneuver "
+                                                   f"trial needs {' or '.join(si_units)}")
+            cols[role], m_units[role] = spec.column, spec.unit
         if not tm.vessel:
             raise fail("vessel", "a maneuver trial needs the vessel whose model is fitted")
         base = tm.baseline or "ls"
@@ -342,7 +394,7 @@ def _resolve(tm: TrialModel, path: Path) -> Trial:
             raise fail("baseline", f"'{base}' is not one of ls, output_error for a maneuver trial")
         return Trial(name=tm.name, kind="maneuver", runs=[], dof=tm.dof, baseline=base, vessel=tm.vessel,
                      provenance=tm.provenance or _header_provenance(files[0]), description=tm.description,
-                     source=path, columns=cols, files=files + vfiles,
+                     source=path, columns=cols, files=files + vfiles, units=m_units,
                      validation_fraction=tm.validation_fraction)
 
     if tm.dof is None:
