@@ -17,6 +17,7 @@ Fault bits (``Feedback.faults``): 1 over-current, 2 over-temperature, 4 command 
 from __future__ import annotations
 
 import math
+from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -70,7 +71,7 @@ def _check(msg: can.Message, length: int, name: str) -> None:
         )
 
 
-class ThrusterCodec:
+class ThrusterCodec(ABC):
     """Base: build command and status frames, decode either kind; frame errors raise CanFrameError."""
 
     mapping = ""
@@ -80,14 +81,17 @@ class ThrusterCodec:
         self.count = len(self.n_max)
         self.db = cantools.database.load_file(str(dbc))
 
+    @abstractmethod
     def command(self, index: int, speed: float, enable: bool, counter: int) -> can.Message:
-        raise NotImplementedError
+        """The setpoint frame of one thruster."""
 
+    @abstractmethod
     def status(self, index: int, speed: float, enabled: bool, faults: int, counter: int) -> list[can.Message]:
-        raise NotImplementedError
+        """The feedback frame(s) a drive sends (the emulator plays the drives)."""
 
+    @abstractmethod
     def decode(self, msg: can.Message) -> Command | Feedback:
-        raise NotImplementedError
+        """A received frame as a command or feedback; CanFrameError if it is not one of ours."""
 
 
 class SeafmuCodec(ThrusterCodec):

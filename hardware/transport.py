@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 import time
+from abc import ABC, abstractmethod
 from collections import Counter
 from collections.abc import Callable
 from typing import Any
@@ -23,7 +24,7 @@ MAX_LINE = 256  # bytes: NMEA allows 82; the Nortek DVL sentences run to about 1
 MAX_FRAMES_PER_POLL = 2000  # a flooding bus must not hold the loop
 
 
-class _Port:
+class _Port(ABC):
     """Open/close/reconnect bookkeeping shared by the serial and CAN ports."""
 
     what = "port"
@@ -48,11 +49,13 @@ class _Port:
         self.counters[kind] += 1
         log.warning(text)
 
+    @abstractmethod
     def _open(self) -> None:
-        raise NotImplementedError
+        """Open the device; raise on failure."""
 
+    @abstractmethod
     def _close(self) -> None:
-        raise NotImplementedError
+        """Close the device."""
 
     def open(self) -> bool:
         """Try to open now; False (logged once per outage) if it cannot."""
