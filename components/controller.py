@@ -57,10 +57,9 @@ from components.allocation import FORCE_UNIT, thrust_capability
 from components.block import Block, Interface, Signal
 from components.guidance import PathGuidance, lawnmower, parse_waypoints
 from components.kinematics import J, rzyx, wrap_angle
-from components.observer import state_unit
 from components.reference_model import ReferenceModel
 from components.thrusters import speed_to_thrust, thruster_matrix
-from components.vessel_spec import ANGLE_NAMES, VesselSpec
+from components.vessel_spec import ANGLE_NAMES, VesselSpec, state_unit
 
 # Closed-loop natural frequencies (rad/s) of the default 6-DOF gains; roll and pitch are placed
 # at a multiple of their hydrostatic natural frequency (see pid_pole_placement).

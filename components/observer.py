@@ -62,7 +62,7 @@ from scipy.special import chdtri
 from components.allocation import FORCE_UNIT
 from components.block import Block, Interface, Signal
 from components.kinematics import m2c, rzyx, wrap_angle
-from components.vessel_spec import ANGLE_NAMES, VesselSpec
+from components.vessel_spec import ANGLE_NAMES, VesselSpec, state_unit
 
 PREDICT_DT_MAX = 0.05  # s: largest prediction sub-step
 Q_ETA = 1e-8  # (m or rad)^2/s: tiny kinematic process noise, keeps P positive definite
@@ -70,17 +70,6 @@ P0_POSITION = 100.0**2  # m^2 (and rad^2 for angles): before the first fix nothi
 P0_VELOCITY = 1.0  # (m/s)^2, (rad/s)^2
 P0_BIAS_ACCEL = 0.1  # m/s^2: initial bias std, as an acceleration (scaled by M_jj into a force)
 R_FLOOR = 1e-12  # smallest measurement variance (a noise-free sensor file must not make S singular)
-
-
-def state_unit(name: str) -> str:
-    """SI unit of a state name (eta or nu)."""
-    if name in ANGLE_NAMES:
-        return "rad"
-    if name in ("p", "q", "r"):
-        return "rad/s"
-    if name in ("u", "v", "w"):
-        return "m/s"
-    return "m"
 
 
 @dataclass(frozen=True)

@@ -25,7 +25,7 @@ from components.environment import GaussMarkovCurrent
 from components.kinematics import J, wrap_angle
 from components.sensors import SensorSuite, mag_heading_error
 from components.vessel_model import VesselModel
-from components.vessel_spec import ANGLE_NAMES, VesselSpec
+from components.vessel_spec import VesselSpec, state_unit
 from components.waves import WaveField, WaveLoad
 
 _MIN_SUBSTEP = 1e-6
@@ -33,12 +33,6 @@ FAIL_MODES = ("ok", "stuck at zero", "stuck at value")
 WAVE_STREAM = 0x3A7E  # entropy tags: SeedSequence([seed, tag]) per random process of the plant
 CURRENT_STREAM = 0xC0C0
 FAULT_PARAMS = ("usbl_outlier_rate", "usbl_outlier_size", "usbl_dropout_start", "usbl_dropout_length")
-
-
-def _units(vessel: VesselSpec) -> dict[str, str]:
-    u = {n: ("rad" if n in ANGLE_NAMES else "m") for n in vessel.eta_names}
-    u.update({n: ("rad/s" if n in ("p", "q", "r") else "m/s") for n in vessel.nu_names})
-    return u
 
 
 class PlantBlock(Block):
@@ -49,21 +43,20 @@ class PlantBlock(Block):
     @classmethod
     def interface(cls, vessel: VesselSpec) -> Interface:
         th = vessel.thrusters
-        units = _units(vessel)
         inputs = [
             Signal(f"n_cmd_{i + 1}", "rev/s", f"shaft speed command of thruster {i + 1} '{name}'",
                    min=-float(th.n_max[i]), max=float(th.n_max[i]))
             for i, name in enumerate(th.names)
         ]
-        outputs = [Signal(n, units[n], f"true position/attitude {n} (NED)") for n in vessel.eta_names]
-        outputs += [Signal(n, units[n], f"true body velocity {n}") for n in vessel.nu_names]
+        outputs = [Signal(n, state_unit(n), f"true position/attitude {n} (NED)") for n in vessel.eta_names]
+        outputs += [Signal(n, state_unit(n), f"true body velocity {n}") for n in vessel.nu_names]
         outputs += [Signal(f"n_{i + 1}", "rev/s", f"actual shaft speed of thruster {i + 1} '{name}'")
                     for i, name in enumerate(th.names)]
         outputs += [Signal(f"thrust_{i + 1}", "N", f"thrust of thruster {i + 1} '{name}'")
                     for i, name in enumerate(th.names)]
         for s in vessel.sensors:
-            outputs += [Signal(f"meas_{c}", units[c], f"{c} measured by {s.name} ({s.rate_hz:g} Hz), held")
-                        for c in s.channels]
+            outputs += [Signal(f"meas_{c}", state_unit(c),
+                               f"{c} measured by {s.name} ({s.rate_hz:g} Hz), held") for c in s.channels]
             outputs.append(Signal(f"{s.name}_count", "", f"samples taken by {s.name}; +1 on each new sample"))
         outputs += [
             Signal("course", "rad", "true course over ground (heading when nearly at rest)"),
@@ -90,7 +83,7 @@ class PlantBlock(Block):
             Signal("current_direction", "rad", "direction the current flows TOWARDS, from north",
                    start=0.0, tunable=True),
         ]
-        params += [Signal(f"{n}_0", units[n], f"initial {n}", start=0.0)
+        params += [Signal(f"{n}_0", state_unit(n), f"initial {n}", start=0.0)
                    for n in vessel.eta_names + vessel.nu_names]
         params.append(Signal("substep", "s", "max RK4 step; a co-simulation step h is split into "
                              "ceil(h / substep) equal RK4 steps", min=_MIN_SUBSTEP, start=0.01))

@@ -23,6 +23,17 @@ TAU_NAMES = {3: ["X", "Y", "N"], 6: ["X", "Y", "Z", "K", "M", "N"]}
 ANGLE_NAMES = {"roll", "pitch", "yaw"}
 
 
+def state_unit(name: str) -> str:
+    """SI unit of a state name (eta or nu), and of the course/SOG a plant also reports."""
+    if name in ANGLE_NAMES or name == "course":
+        return "rad"
+    if name in ("p", "q", "r"):
+        return "rad/s"
+    if name in ("u", "v", "w", "sog"):
+        return "m/s"
+    return "m"
+
+
 class VesselFileError(ValueError):
     """A vessel file is missing, unreadable or has a bad field (message names both)."""
 

@@ -45,7 +45,7 @@ from cantools.database.errors import EncodeError
 
 from components.block import Interface, Signal
 from components.thrusters import speed_to_thrust
-from components.vessel_spec import ANGLE_NAMES, VesselSpec, load_vessel
+from components.vessel_spec import VesselSpec, load_vessel, state_unit
 from hardware.canbus import CanFrameError, Command, Feedback, ThrusterCodec, make_codec
 from hardware.nmea import EXTRA_CHANNELS, SENTENCES, NmeaCodec, NmeaError, check_mapping, default_sentences
 from hardware.pacing import Pacer, PacingStats
@@ -63,16 +63,6 @@ LOG_FIRST = 5  # one-line log messages per drop class before they are only count
 
 class HardwareError(RuntimeError):
     """The link cannot start (port, profile, vessel); one line saying what and where."""
-
-
-def _unit(channel: str) -> str:
-    if channel in ANGLE_NAMES or channel == "course":
-        return "rad"
-    if channel in ("p", "q", "r"):
-        return "rad/s"
-    if channel in ("u", "v", "w", "sog"):
-        return "m/s"
-    return "m"
 
 
 def sensor_mapping(profile: HardwareProfile, spec: VesselSpec) -> dict[str, list[str]]:
@@ -258,7 +248,8 @@ class HardwareLink:
         ]
         for s in spec.sensors:
             outputs += [
-                Signal(f"meas_{c}", _unit(c), f"{c} measured by {s.name} ({'+'.join(mapping[s.name])}), held")
+                Signal(f"meas_{c}", state_unit(c),
+                       f"{c} measured by {s.name} ({'+'.join(mapping[s.name])}), held")
                 for c in s.channels
             ]
             outputs.append(
@@ -266,7 +257,7 @@ class HardwareLink:
             )
         carried = {c for sentences in mapping.values() for sen in sentences for c in SENTENCES[sen].extras}
         outputs += [
-            Signal(c, _unit(c), f"{c} over ground from the position sensor's sentences")
+            Signal(c, state_unit(c), f"{c} over ground from the position sensor's sentences")
             for c in EXTRA_CHANNELS
             if c in carried
         ]

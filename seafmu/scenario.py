@@ -13,10 +13,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
 
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from seafmu.units import UnitError, to_si
+from seafmu.yamlfile import read_mapping, validation_message
 
 REPO = Path(__file__).resolve().parents[1]
 SCENARIO_DIR = REPO / "scenarios"
@@ -153,47 +153,13 @@ def scenario_path(name_or_path: str | Path | None) -> Path:
     raise ScenarioError(f"scenario '{name_or_path}': no such file or shipped scenario (shipped: {known})")
 
 
-class _UniqueKeyLoader(yaml.SafeLoader):
-    """YAML silently keeps the last of two equal keys; in a scenario that hides a mistake."""
-
-    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict:
-        seen: set[Any] = set()
-        for key_node, _ in node.value:
-            key = self.construct_object(key_node, deep=deep)
-            if key in seen:
-                where = f"duplicate key '{key}' (line {key_node.start_mark.line + 1})"
-                raise yaml.constructor.ConstructorError(None, None, where, key_node.start_mark)
-            seen.add(key)
-        return super().construct_mapping(node, deep=deep)
-
-
 def load_scenario(name_or_path: str | Path | None = None) -> Scenario:
     path = scenario_path(name_or_path)
-    try:
-        doc = yaml.load(path.read_text(encoding="utf-8"), Loader=_UniqueKeyLoader)
-    except yaml.YAMLError as exc:
-        first = str(exc).replace("\n", " ").strip()
-        if isinstance(exc, yaml.constructor.ConstructorError) and exc.problem:
-            first = exc.problem
-        raise ScenarioError(f"{path}: not valid YAML ({first})") from None
-    except UnicodeDecodeError:
-        raise ScenarioError(f"{path}: not UTF-8 text") from None
-    except OSError as exc:
-        raise ScenarioError(f"{path}: cannot read ({exc.strerror})") from None
-    if not isinstance(doc, dict):
-        raise ScenarioError(f"{path}: expected a mapping of scenario fields at the top level")
+    doc = read_mapping(path, "scenario", ScenarioError)
     try:
         model = ScenarioModel.model_validate(doc)
     except ValidationError as exc:
-        err = exc.errors()[0]
-        loc = ".".join(str(p) for p in err["loc"]) or "(top level)"
-        msg = err["msg"]
-        if err["type"] == "extra_forbidden":
-            msg = "unknown field"
-        elif err["type"] == "missing":
-            msg = "required field is missing"
-        got = "" if err["type"] in ("missing", "extra_forbidden") else f" (got {err.get('input')!r})"
-        raise ScenarioError(f"{path}: {loc}: {msg}{got}") from None
+        raise ScenarioError(f"{path}: {validation_message(exc)}") from None
     return resolve(model, path)
 
 

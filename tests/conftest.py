@@ -1,10 +1,22 @@
-"""Shared fixtures: the FMUs are built once per test session (incrementally, like `seafmu build`)."""
+"""Shared fixtures: the vessels (one load per test module) and the FMUs (built once per session,
+incrementally, like `seafmu build`)."""
 
 from __future__ import annotations
 
 import pytest
 
+from components.vessel_spec import VesselSpec, load_vessel
 from seafmu.build import build_all
+
+
+@pytest.fixture(scope="module")
+def minerva() -> VesselSpec:
+    return load_vessel("minerva2")
+
+
+@pytest.fixture(scope="module")
+def amv() -> VesselSpec:
+    return load_vessel("amv_osf")
 
 
 @pytest.fixture(scope="session")

@@ -17,17 +17,7 @@ from components.allocation import (
 )
 from components.block import full_params
 from components.thrusters import max_thrust, speed_to_thrust, thruster_matrix
-from components.vessel_spec import VesselSpec, load_vessel
-
-
-@pytest.fixture(scope="module")
-def minerva() -> VesselSpec:
-    return load_vessel("minerva2")
-
-
-@pytest.fixture(scope="module")
-def amv() -> VesselSpec:
-    return load_vessel("amv_osf")
+from components.vessel_spec import VesselSpec
 
 
 def block(vessel: VesselSpec, **params: object) -> AllocatorBlock:

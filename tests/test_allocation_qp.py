@@ -26,11 +26,6 @@ H = 0.05
 
 
 @pytest.fixture(scope="module")
-def minerva() -> VesselSpec:
-    return load_vessel("minerva2")
-
-
-@pytest.fixture(scope="module")
 def B(minerva: VesselSpec) -> np.ndarray:
     return thruster_matrix(minerva.thrusters, 6)
 

@@ -13,14 +13,9 @@ from components.allocation import AllocatorBlock
 from components.amv_land import LandModel, LandParams, land_step, land_velocity
 from components.block import full_params
 from components.controller import ControllerBlock
-from components.vessel_spec import VesselSpec, load_vessel
+from components.vessel_spec import VesselSpec
 
 H = 0.05
-
-
-@pytest.fixture(scope="module")
-def amv() -> VesselSpec:
-    return load_vessel("amv_osf")
 
 
 def controller(vessel: VesselSpec, **params: object) -> ControllerBlock:

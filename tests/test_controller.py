@@ -14,17 +14,7 @@ from components.controller import ControllerBlock, restoring_stiffness
 from components.kinematics import J, rzyx, wrap_angle
 from components.reference_model import ReferenceModel, _exact_coefficients
 from components.vessel_model import VesselModel
-from components.vessel_spec import VesselSpec, load_vessel
-
-
-@pytest.fixture(scope="module")
-def minerva() -> VesselSpec:
-    return load_vessel("minerva2")
-
-
-@pytest.fixture(scope="module")
-def amv() -> VesselSpec:
-    return load_vessel("amv_osf")
+from components.vessel_spec import VesselSpec
 
 
 def controller(vessel: VesselSpec, **params: object) -> ControllerBlock:

@@ -16,16 +16,6 @@ from components.vessel_model import VesselModel
 from components.vessel_spec import VesselSpec, load_vessel
 
 
-@pytest.fixture(scope="module")
-def minerva() -> VesselSpec:
-    return load_vessel("minerva2")
-
-
-@pytest.fixture(scope="module")
-def amv() -> VesselSpec:
-    return load_vessel("amv_osf")
-
-
 def observer(vessel: VesselSpec, **params: object) -> ObserverBlock:
     return ObserverBlock(vessel, full_params(ObserverBlock.interface(vessel), params))
 

@@ -21,11 +21,6 @@ from components.vessel_spec import VesselSpec, load_vessel
 DEPTH = 5.0
 
 
-@pytest.fixture(scope="module")
-def minerva() -> VesselSpec:
-    return load_vessel("minerva2")
-
-
 def observer(vessel: VesselSpec, **params: object) -> ObserverBlock:
     return ObserverBlock(vessel, full_params(ObserverBlock.interface(vessel), params))
 

@@ -14,17 +14,6 @@ from components.plant import PlantBlock
 from components.vessel_model import VesselModel
 from components.vessel_spec import VesselSpec, load_vessel
 
-
-@pytest.fixture(scope="module")
-def amv() -> VesselSpec:
-    return load_vessel("amv_osf")
-
-
-@pytest.fixture(scope="module")
-def minerva() -> VesselSpec:
-    return load_vessel("minerva2")
-
-
 # Appended by the environment/sensor-fault work (issue 5): new names only, after the old ones.
 ENV_PARAMS = [
     "wave_hs", "wave_tp", "wave_direction", "wave_gamma", "wave_components", "current_variation",

@@ -16,11 +16,6 @@ from components.vessel_spec import VesselSpec, load_vessel
 from components.waves import WaveField, WaveLoad, jonswap
 
 
-@pytest.fixture(scope="module")
-def minerva() -> VesselSpec:
-    return load_vessel("minerva2")
-
-
 def plant(vessel: VesselSpec, **params: object) -> PlantBlock:
     return PlantBlock(vessel, full_params(PlantBlock.interface(vessel), params))
 

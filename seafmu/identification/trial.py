@@ -19,6 +19,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from seafmu.units import UnitError
+from seafmu.yamlfile import read_mapping, validation_message
 
 
 class TrialError(ValueError):
@@ -335,23 +336,11 @@ def _check_time(path: Path, t: np.ndarray, lines: list[int], name: str) -> None:
 def load_trial(path: str | Path) -> Trial:
     """Load and validate a trial YAML and its CSV files (paths relative to the YAML)."""
     path = Path(path)
-    try:
-        doc = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise TrialError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
-    except OSError as exc:
-        raise TrialError(f"{path}: cannot read ({exc.strerror or exc})") from None
-    if not isinstance(doc, dict):
-        raise TrialError(f"{path}: expected a mapping of trial fields at the top level")
+    doc = read_mapping(path, "trial", TrialError)
     try:
         tm = TrialModel.model_validate(doc)
     except ValidationError as exc:
-        err = exc.errors()[0]
-        loc = ".".join(str(p) for p in err["loc"]) or "(top level)"
-        msg = {"extra_forbidden": "unknown field", "missing": "required field is missing"}.get(
-            err["type"], err["msg"])
-        got = "" if err["type"] in ("missing", "extra_forbidden") else f" (got {err.get('input')!r})"
-        raise TrialError(f"{path}: {loc}: {msg}{got}") from None
+        raise TrialError(f"{path}: {validation_message(exc)}") from None
     return _resolve(tm, path)
 
 
