@@ -1,0 +1,273 @@
+"""``seafmu export``: a scenario written for other co-simulation engines (SSP 1.0, OSP).
+
+Both formats carry the FMUs, the connections, the parameter values (SI, as the scenario resolved
+them) and each FMU's step size (``step × step_multiple``). What they cannot carry is written
+beside them and named in one line:
+* timed events → a libcosim scenario file (JSON; ``CosimExecution.load_scenario``), which OSP's
+  ``cosim run`` and libcosimpy read; ecos gets the same events from the JSON via
+  ``EcosSimulation.add_scenario(real_actions=...)`` (see ``load_events``);
+* acceptance checks → ``checks.yaml`` (neither format has checks).
+Timing semantics: both engines step every FMU in parallel (Jacobi coupling); run seafmu with
+``coupling: jacobi`` to compare exactly.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import tempfile
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+from xml.etree import ElementTree as ET
+
+import yaml
+
+from seafmu.scenario import Instance, Scenario
+from seafmu.unitdefs import UnitParseError, base_unit
+
+SSD = "http://ssp-standard.org/SSP1/SystemStructureDescription"
+SSC = "http://ssp-standard.org/SSP1/SystemStructureCommon"
+SSV = "http://ssp-standard.org/SSP1/SystemStructureParameterValues"
+OSP_ANN = "http://opensimulationplatform.com/SSP/OSPAnnotations"
+OSP_CFG = "http://opensimulationplatform.com/MSMI/OSPSystemStructure"
+PARAMETER_SET = "initialValues"  # one name for every component: ecos applies sets by name
+for _prefix, _uri in (("ssd", SSD), ("ssc", SSC), ("ssv", SSV), ("osp", OSP_ANN)):
+    ET.register_namespace(_prefix, _uri)
+
+_SSP_TYPE = {"real": "Real", "integer": "Integer", "boolean": "Boolean", "string": "String"}
+
+
+class ExportError(ValueError):
+    """A scenario that cannot be exported; the message is one line."""
+
+
+@dataclass
+class Export:
+    """What was written and what the target format could not hold."""
+
+    files: list[Path] = field(default_factory=list)
+    left_out: list[str] = field(default_factory=list)
+
+    def summary(self) -> str:
+        if not self.left_out:
+            return "nothing left out"
+        return "not expressible in the format, written beside it: " + "; ".join(self.left_out)
+
+
+def fmu_sources(sc: Scenario) -> dict[str, Path]:
+    """Instance name -> FMU file (built seafmu FMUs or the scenario's own)."""
+    from seafmu.build import build_fmu
+
+    out: dict[str, Path] = {}
+    for inst in sc.instances:
+        if inst.hardware:
+            raise ExportError(f"{sc.source}: fmus.{inst.name}: a hardware link cannot be exported; build it "
+                              f"with 'seafmu build --link {inst.hardware}' and name the FMU with 'fmu:'")
+        out[inst.name] = inst.fmu_file if inst.fmu_file else build_fmu(sc.vessel, str(inst.kind)).path
+    return out
+
+
+def _value_text(value: Any, vtype: str) -> str:
+    if vtype == "boolean":
+        return "true" if value else "false"
+    if vtype == "integer":
+        return str(int(value))
+    if vtype == "real":
+        return repr(float(value))
+    return str(value)
+
+
+def _parameters(inst: Instance) -> list[tuple[str, str, Any, str]]:
+    """(name, type, value, unit) of the instance's parameter values, in the scenario's order."""
+    out = []
+    for name, value in inst.parameters.items():
+        info = inst.variables[name]
+        out.append((name, info.type, value, info.unit or ""))
+    return out
+
+
+def _ports(inst: Instance) -> list[tuple[str, str, str, str]]:
+    """(name, kind, type, unit) of the connectors: inputs, outputs and the parameters that are set."""
+    ports = [(v.name, v.causality, v.type, v.unit or "") for v in inst.variables.values()
+             if v.causality in ("input", "output")]
+    ports += [(n, "parameter", t, u) for n, t, _, u in _parameters(inst)]
+    return ports
+
+
+def _units_element(parent: ET.Element, units: set[str], ns: str) -> None:
+    defined = [u for u in sorted(units) if u]
+    if not defined:
+        return
+    el = ET.SubElement(parent, f"{{{ns}}}Units")
+    for name in defined:
+        unit = ET.SubElement(el, f"{{{SSC}}}Unit", name=name)
+        try:
+            attrs = base_unit(name)
+        except UnitParseError:
+            attrs = None
+        ET.SubElement(unit, f"{{{SSC}}}BaseUnit", attrs or {})
+
+
+def _ssv(inst: Instance) -> bytes:
+    root = ET.Element(f"{{{SSV}}}ParameterSet", version="1.0", name=PARAMETER_SET)
+    params = ET.SubElement(root, f"{{{SSV}}}Parameters")
+    units: set[str] = set()
+    for name, vtype, value, unit in _parameters(inst):
+        p = ET.SubElement(params, f"{{{SSV}}}Parameter", name=name)
+        attrs = {"value": _value_text(value, vtype)}
+        if vtype == "real" and unit:
+            attrs["unit"] = unit
+            units.add(unit)
+        ET.SubElement(p, f"{{{SSV}}}{_SSP_TYPE[vtype]}", attrs)
+    _units_element(root, units, SSV)
+    return _xml(root)
+
+
+def _xml(root: ET.Element) -> bytes:
+    ET.indent(root)
+    return ET.tostring(root, encoding="utf-8", xml_declaration=True)
+
+
+def ssd_document(sc: Scenario, sources: dict[str, str]) -> bytes:
+    """SystemStructure.ssd (SSP 1.0) for the scenario; ``sources`` maps instance -> path in the SSP."""
+    root = ET.Element(f"{{{SSD}}}SystemStructureDescription", version="1.0", name=sc.name)
+    system = ET.SubElement(root, f"{{{SSD}}}System", name=sc.name)
+    if sc.description:
+        system.set("description", " ".join(sc.description.split()))
+    elements = ET.SubElement(system, f"{{{SSD}}}Elements")
+    units: set[str] = set()
+    for inst in sc.instances:
+        comp = ET.SubElement(elements, f"{{{SSD}}}Component", name=inst.name,
+                             type="application/x-fmu-sharedlibrary", source=sources[inst.name])
+        connectors = ET.SubElement(comp, f"{{{SSD}}}Connectors")
+        for name, kind, vtype, unit in _ports(inst):
+            c = ET.SubElement(connectors, f"{{{SSD}}}Connector", name=name, kind=kind)
+            t = ET.SubElement(c, f"{{{SSC}}}{_SSP_TYPE[vtype]}")
+            if vtype == "real" and unit:
+                t.set("unit", unit)
+                units.add(unit)
+        if inst.parameters:
+            bindings = ET.SubElement(comp, f"{{{SSD}}}ParameterBindings")
+            ET.SubElement(bindings, f"{{{SSD}}}ParameterBinding", source=f"resources/{inst.name}.ssv")
+        ann = ET.SubElement(ET.SubElement(comp, f"{{{SSD}}}Annotations"), f"{{{SSC}}}Annotation",
+                            type="com.opensimulationplatform")
+        ET.SubElement(ann, f"{{{OSP_ANN}}}StepSizeHint", value=repr(sc.step * inst.step_multiple))
+    if sc.connections:
+        conns = ET.SubElement(system, f"{{{SSD}}}Connections")
+        for src, svar, dst, dvar in sc.connections:
+            ET.SubElement(conns, f"{{{SSD}}}Connection", startElement=src, startConnector=svar,
+                          endElement=dst, endConnector=dvar)
+    _units_element(root, units, SSD)
+    exp = ET.SubElement(root, f"{{{SSD}}}DefaultExperiment", startTime="0.0", stopTime=repr(sc.duration))
+    ann = ET.SubElement(ET.SubElement(exp, f"{{{SSD}}}Annotations"), f"{{{SSC}}}Annotation",
+                        type="com.opensimulationplatform")
+    alg = ET.SubElement(ann, f"{{{OSP_ANN}}}Algorithm")
+    ET.SubElement(alg, f"{{{OSP_ANN}}}FixedStepAlgorithm", baseStepSize=repr(sc.step))
+    return _xml(root)
+
+
+def events_document(sc: Scenario) -> dict[str, Any]:
+    """The events as a libcosim scenario (JSON): override actions at their times."""
+    events = []
+    for t, inst, var, value in sc.events:
+        vtype = sc.instance(inst).variables[var].type
+        events.append({"time": t, "model": inst, "variable": var, "action": "override",
+                       "value": value if vtype != "real" else float(value)})
+    return {"description": f"events of seafmu scenario '{sc.name}'", "events": events, "end": sc.duration}
+
+
+def load_events(path: Path) -> list[tuple[float, str, str, Any]]:
+    """Events back from a libcosim scenario file, for engines that take them by API (ecos)."""
+    doc = json.loads(Path(path).read_text())
+    return [(float(e["time"]), e["model"], e["variable"], e["value"]) for e in doc["events"]]
+
+
+def _checks_document(sc: Scenario) -> list[dict[str, Any]]:
+    return [c.model_dump(exclude_none=True) for c in sc.checks]
+
+
+def _beside(sc: Scenario, out: Export, events_path: Path, checks_path: Path) -> None:
+    if sc.events:
+        events_path.write_text(json.dumps(events_document(sc), indent=2) + "\n")
+        out.files.append(events_path)
+        out.left_out.append(f"{len(sc.events)} events -> {events_path.name} (libcosim scenario JSON)")
+    if sc.checks:
+        checks_path.write_text(yaml.safe_dump({"scenario": sc.name, "checks": _checks_document(sc)},
+                                              sort_keys=False))
+        out.files.append(checks_path)
+        out.left_out.append(f"{len(sc.checks)} checks -> {checks_path.name}")
+
+
+def export_ssp(sc: Scenario, target: Path) -> Export:
+    """Write ``target`` (.ssp: a zip of SystemStructure.ssd, resources/*.fmu, resources/*.ssv)."""
+    target = Path(target)
+    if target.suffix != ".ssp":
+        raise ExportError(f"{target}: an SSP file name ends in .ssp")
+    if not target.parent.is_dir():
+        raise ExportError(f"{target}: folder {target.parent} does not exist")
+    fmus = fmu_sources(sc)
+    sources = {name: f"resources/{path.name}" for name, path in fmus.items()}
+    out = Export()
+    with tempfile.NamedTemporaryFile(dir=target.parent, suffix=".ssp.tmp", delete=False) as tmp:
+        tmp_path = Path(tmp.name)
+    try:
+        with zipfile.ZipFile(tmp_path, "w", zipfile.ZIP_DEFLATED) as z:
+            z.writestr("SystemStructure.ssd", ssd_document(sc, sources))
+            for path in sorted(set(fmus.values())):
+                z.write(path, f"resources/{path.name}")
+            for inst in sc.instances:
+                if inst.parameters:
+                    z.writestr(f"resources/{inst.name}.ssv", _ssv(inst))
+        tmp_path.replace(target)
+    finally:
+        tmp_path.unlink(missing_ok=True)
+    out.files.append(target)
+    stem = target.with_suffix("")
+    _beside(sc, out, stem.with_name(stem.name + ".events.json"), stem.with_name(stem.name + ".checks.yaml"))
+    return out
+
+
+def osp_document(sc: Scenario, sources: dict[str, str]) -> bytes:
+    """OspSystemStructure.xml: simulators (step sizes, initial values) and connections."""
+    ET.register_namespace("", OSP_CFG)
+    root = ET.Element(f"{{{OSP_CFG}}}OspSystemStructure", version="0.1")
+    ET.SubElement(root, f"{{{OSP_CFG}}}StartTime").text = "0.0"
+    ET.SubElement(root, f"{{{OSP_CFG}}}BaseStepSize").text = repr(sc.step)
+    ET.SubElement(root, f"{{{OSP_CFG}}}Algorithm").text = "fixedStep"
+    sims = ET.SubElement(root, f"{{{OSP_CFG}}}Simulators")
+    for inst in sc.instances:
+        sim = ET.SubElement(sims, f"{{{OSP_CFG}}}Simulator", name=inst.name, source=sources[inst.name],
+                            stepSize=repr(sc.step * inst.step_multiple))
+        if inst.parameters:
+            ivs = ET.SubElement(sim, f"{{{OSP_CFG}}}InitialValues")
+            for name, vtype, value, _unit in _parameters(inst):
+                iv = ET.SubElement(ivs, f"{{{OSP_CFG}}}InitialValue", variable=name)
+                ET.SubElement(iv, f"{{{OSP_CFG}}}{_SSP_TYPE[vtype]}", value=_value_text(value, vtype))
+    conns = ET.SubElement(root, f"{{{OSP_CFG}}}Connections")
+    for src, svar, dst, dvar in sc.connections:
+        vc = ET.SubElement(conns, f"{{{OSP_CFG}}}VariableConnection")
+        ET.SubElement(vc, f"{{{OSP_CFG}}}Variable", simulator=src, name=svar)
+        ET.SubElement(vc, f"{{{OSP_CFG}}}Variable", simulator=dst, name=dvar)
+    return _xml(root)
+
+
+def export_osp(sc: Scenario, target: Path) -> Export:
+    """Write ``target/``: OspSystemStructure.xml, the FMUs, scenario.json (events), checks.yaml."""
+    target = Path(target)
+    if target.exists() and not target.is_dir():
+        raise ExportError(f"{target}: exists and is not a folder")
+    if not target.parent.is_dir():
+        raise ExportError(f"{target}: folder {target.parent} does not exist")
+    target.mkdir(exist_ok=True)
+    fmus = fmu_sources(sc)
+    out = Export()
+    for path in sorted(set(fmus.values())):
+        shutil.copyfile(path, target / path.name)
+        out.files.append(target / path.name)
+    doc = target / "OspSystemStructure.xml"
+    doc.write_bytes(osp_document(sc, {name: path.name for name, path in fmus.items()}))
+    out.files.insert(0, doc)
+    _beside(sc, out, target / "scenario.json", target / "checks.yaml")
+    return out

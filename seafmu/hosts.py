@@ -1,0 +1,159 @@
+"""Run files written by ``seafmu export`` in other engines: OSP libcosim (libcosimpy) and ecos (ecospy).
+
+Used by the cross-engine tests and ``benchmarks/bench_hosts.py``. Each runner steps the engine
+one communication step at a time and reads the requested real variables after every step, so
+the series line up with seafmu's ``results.csv`` rows (row k = after k steps).
+
+ecos needs the TBB runtime (``libtbb.so.12``); the ``tbb`` wheel installs it into the
+environment's ``lib/`` folder, which is not on the loader's path, so :func:`_load_ecos` preloads
+it before importing ecospy.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from seafmu.export import load_events
+
+_NS = 1_000_000_000
+
+
+class EngineError(RuntimeError):
+    """An engine could not load or run an exported system; one line."""
+
+
+def _steps(duration: float, step: float) -> int:
+    n = round(duration / step)
+    if abs(n * step - duration) > 1e-9 * max(1.0, duration):
+        raise EngineError(f"duration {duration} s is not a whole number of {step} s steps")
+    return n
+
+
+def _libcosim_run(execution: Any, record: Sequence[tuple[str, str]], n_steps: int,
+                  scenario: Path | None) -> dict[str, np.ndarray]:
+    from libcosimpy.CosimManipulator import CosimManipulator
+    from libcosimpy.CosimObserver import CosimObserver
+
+    index = {info.name.decode(): info.index for info in execution.slave_infos()}
+    refs: list[tuple[int, int]] = []
+    for inst, var in record:
+        if inst not in index:
+            raise EngineError(f"libcosim: no simulator '{inst}'")
+        by_name = {v.name.decode(): v.reference for v in execution.slave_variables(index[inst])}
+        if var not in by_name:
+            raise EngineError(f"libcosim: simulator '{inst}' has no variable '{var}'")
+        refs.append((index[inst], by_name[var]))
+    observer = CosimObserver.create_last_value()
+    execution.add_observer(observer)
+    if scenario is not None:
+        manager = CosimManipulator.create_scenario_manager()
+        execution.add_manipulator(manager)
+        if not execution.load_scenario(manager, str(scenario)):
+            raise EngineError(f"libcosim: could not load the scenario {scenario}")
+    out = np.empty((n_steps + 1, len(record)))
+    for k in range(n_steps + 1):
+        if k and not execution.step(1):
+            raise EngineError(f"libcosim: step {k} failed")
+        for j, (slave, ref) in enumerate(refs):
+            out[k, j] = observer.last_real_values(slave, [ref])[0]
+    return {f"{i}.{v}": out[:, j] for j, (i, v) in enumerate(record)}
+
+
+def _quiet_libcosim() -> None:
+    """libcosim logs every FMI call at debug level to stdout by default; keep warnings only."""
+    from libcosimpy import CosimLogging
+
+    CosimLogging.log_output_level(CosimLogging.CosimLogLevel.WARNING)
+
+
+def run_osp_libcosim(folder: Path, record: Sequence[tuple[str, str]], duration: float,
+                     step: float) -> dict[str, np.ndarray]:
+    """Run ``folder/OspSystemStructure.xml`` (and ``scenario.json`` when present) in libcosim."""
+    from libcosimpy.CosimExecution import CosimExecution
+
+    _quiet_libcosim()
+    folder = Path(folder)
+    try:
+        execution = CosimExecution.from_osp_config_file(str(folder / "OspSystemStructure.xml"))
+    except AssertionError as exc:
+        raise EngineError(f"libcosim: {exc}") from None
+    scenario = folder / "scenario.json"
+    return _libcosim_run(execution, record, _steps(duration, step), scenario if scenario.is_file() else None)
+
+
+def run_ssp_libcosim(ssp: Path, record: Sequence[tuple[str, str]], duration: float, step: float,
+                     events: Path | None = None) -> dict[str, np.ndarray]:
+    """Run an exported .ssp in libcosim (events from the libcosim scenario file written beside it)."""
+    from libcosimpy.CosimExecution import CosimExecution
+
+    _quiet_libcosim()
+    try:
+        execution = CosimExecution.from_ssp_file(str(ssp), step_size=round(step * _NS))
+    except AssertionError as exc:
+        raise EngineError(f"libcosim: {exc}") from None
+    return _libcosim_run(execution, record, _steps(duration, step), events)
+
+
+def _load_ecos() -> Any:
+    lib = Path(sys.prefix) / "lib" / "libtbb.so.12"
+    if lib.is_file():
+        ctypes.CDLL(str(lib), mode=ctypes.RTLD_GLOBAL)
+    try:
+        import ecospy
+    except OSError as exc:
+        raise EngineError(f"ecos: cannot load its library ({exc}); install the 'tbb' wheel") from None
+    return ecospy
+
+
+def _ecos_events(ecospy: Any, sim: Any, events: list[tuple[float, str, str, Any]], step: float) -> None:
+    """Timed real-valued overrides as an ecos scenario listener.
+
+    Not ``EcosSimulation.add_scenario``: ecospy 0.7.2 declares ``ecos_scenario_add_real_action``
+    without its last argument (``eps``, a C++ default), so ecos reads an undefined tolerance and
+    actions after t = 0 never fire; and ecos applies actions from the back of its list, sorting
+    them only for XML scenarios, so they are added latest first.
+    """
+    from ecospy.lib import dll
+
+    create = dll.ecos_scenario_create
+    create.restype = ctypes.c_void_p
+    add = dll.ecos_scenario_add_real_action
+    add.argtypes = [ctypes.c_void_p, ctypes.c_double, ctypes.c_char_p, ctypes.c_double, ctypes.c_double]
+    add.restype = ctypes.c_bool
+    listener = create()
+    for t, inst, var, value in sorted(events, key=lambda e: -e[0]):
+        if not add(listener, t, f"{inst}::{var}".encode(), float(value), step / 2):
+            raise EngineError(f"ecos: event {inst}.{var} at {t} s: {ecospy.EcosLib.get_last_error()}")
+    sim._add_listener(sim.sim, b"scenario", listener)
+
+
+def run_ssp_ecos(ssp: Path, record: Sequence[tuple[str, str]], duration: float, step: float,
+                 events: Path | None = None, parameter_set: str = "initialValues") -> dict[str, np.ndarray]:
+    """Run an exported .ssp in ecos, with the exported parameter set and events."""
+    ecospy = _load_ecos()
+    try:
+        sim = ecospy.EcosSimulation(ssp_path=str(ssp), step_size=step)
+    except Exception as exc:  # ecospy raises bare Exception with the library's message
+        raise EngineError(f"ecos: {exc}") from None
+    try:
+        if events is not None:
+            _ecos_events(ecospy, sim, load_events(events), step)
+        sim.init(parameter_set=parameter_set)
+        n_steps = _steps(duration, step)
+        ids = [f"{i}::{v}" for i, v in record]
+        out = np.empty((n_steps + 1, len(record)))
+        for k in range(n_steps + 1):
+            if k:
+                sim.step()
+            for j, ident in enumerate(ids):
+                out[k, j] = sim.get_real(ident)
+        sim.terminate()
+    finally:
+        sim.free()
+    return {f"{i}.{v}": out[:, j] for j, (i, v) in enumerate(record)}
