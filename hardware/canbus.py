@@ -4,12 +4,15 @@ Two mappings, one interface (``ThrusterCodec``):
 
 - ``seafmu`` (``seafmu_thrusters.dbc``): per thruster i (1..8) a command ``THR_CMD_i`` (0x100 + i:
   speed setpoint 0.01 rev/s, enable, alive counter) and a status ``THR_STATUS_i`` (0x180 + i:
-  measured speed, enabled, fault bits, alive counter). Standard 11-bit ids, DLC 4.
+  measured speed, enabled, fault bits, alive counter). Standard 11-bit ids, DLC 4. The command's
+  4-bit alive counter rises by one per frame; a drive takes a frame whose counter did not advance
+  as stale (``hardware/drive.py``), and latches a command timeout until an enable 0 -> 1 edge.
 - ``nmea2000`` (``nmea2000_thrusters.dbc``): PGN 128006 Thruster Control Status (direction, power,
   speed in % of n_max) as the demand from seafmu's source address and as each thruster's reported
   state from its own; PGN 128008 Thruster Motor Status for fault bits. Limits: 1 % speed steps,
   no command-timeout fault bit; demands go out as broadcast 128006, not wrapped in PGN 126208
-  Command Group Function (a fast-packet message), which some commercial thrusters require.
+  Command Group Function (a fast-packet message), which some commercial thrusters require. The
+  demand's SID is seafmu's alive counter (+1 per frame, mod 252); only the emulated drive checks it.
 
 Fault bits (``Feedback.faults``): 1 over-current, 2 over-temperature, 4 command timeout, 8 hardware.
 """
@@ -25,6 +28,8 @@ import can
 import cantools
 import numpy as np
 from cantools.database.errors import DecodeError
+
+from hardware.plausibility import violation
 
 FAULT_OVERCURRENT, FAULT_OVERTEMPERATURE, FAULT_COMMAND_TIMEOUT, FAULT_HARDWARE = 1, 2, 4, 8
 _FAULT_SIGNALS = (
@@ -45,11 +50,12 @@ class CanFrameError(ValueError):
 
 @dataclass(frozen=True)
 class Command:
-    """A setpoint as the vessel side receives it (index 0-based)."""
+    """A setpoint as the vessel side receives it (index 0-based); ``counter``: its alive counter."""
 
     index: int
     speed: float  # rev/s
     enable: bool
+    counter: int | None = None
 
 
 @dataclass(frozen=True)
@@ -72,14 +78,30 @@ def _check(msg: can.Message, length: int, name: str) -> None:
 
 
 class ThrusterCodec(ABC):
-    """Base: build command and status frames, decode either kind; frame errors raise CanFrameError."""
+    """Base: build command and status frames, decode either kind; frame errors raise CanFrameError.
+
+    ``counter_modulus``: the alive counter's range (the link's frame counter is sent modulo it);
+    ``command_timeout``: what a drive on this mapping uses (s); ``latching``: whether the drive,
+    after a command timeout, needs an enable 0 -> 1 edge (True) or resumes on the next fresh
+    command (False: the mapping cannot report the latch)."""
 
     mapping = ""
+    counter_modulus = 16
+    latching = True
 
-    def __init__(self, n_max: np.ndarray, dbc: Path) -> None:
+    def __init__(self, n_max: np.ndarray, dbc: Path, command_timeout: float = 0.5) -> None:
         self.n_max = np.asarray(n_max, dtype=float)
         self.count = len(self.n_max)
         self.db = cantools.database.load_file(str(dbc))
+        self.command_timeout = float(command_timeout)
+
+    def _plausible(self, fb: Feedback, name: str) -> Feedback:
+        """The feedback, unless its speed is outside hardware/plausibility.py's limit."""
+        if fb.speed is not None:
+            why = violation("speed_measured", fb.speed, float(self.n_max[fb.index]))
+            if why:
+                raise CanFrameError("implausible_feedback", f"{name}: thruster {fb.index + 1}: {why}")
+        return fb
 
     @abstractmethod
     def command(self, index: int, speed: float, enable: bool, counter: int) -> can.Message:
@@ -99,8 +121,8 @@ class SeafmuCodec(ThrusterCodec):
 
     mapping = "seafmu"
 
-    def __init__(self, n_max: np.ndarray, dbc: Path) -> None:
-        super().__init__(n_max, dbc)
+    def __init__(self, n_max: np.ndarray, dbc: Path, command_timeout: float = 0.5) -> None:
+        super().__init__(n_max, dbc, command_timeout)
         self._cmd = [self.db.get_message_by_name(f"THR_CMD_{i + 1}") for i in range(self.count)]
         self._sts = [self.db.get_message_by_name(f"THR_STATUS_{i + 1}") for i in range(self.count)]
         self._by_id: dict[int, tuple[str, int]] = {}
@@ -137,15 +159,17 @@ class SeafmuCodec(ThrusterCodec):
         except (DecodeError, ValueError) as exc:
             raise CanFrameError("decode", f"{m.name}: {exc}") from None
         if kind == "cmd":
-            return Command(i, float(d["speed_setpoint"]), bool(d["enable"]))
+            return Command(i, float(d["speed_setpoint"]), bool(d["enable"]), int(d["counter"]))
         faults = sum(bit for name, bit in _FAULT_SIGNALS if d[name])
-        return Feedback(i, float(d["speed_measured"]), bool(d["enabled"]), faults)
+        return self._plausible(Feedback(i, float(d["speed_measured"]), bool(d["enabled"]), faults), m.name)
 
 
 class Nmea2000Codec(ThrusterCodec):
     """PGN 128006 (demand and reported state) and 128008 (motor events) (``nmea2000_thrusters.dbc``)."""
 
     mapping = "nmea2000"
+    counter_modulus = 252  # SID 0..251 (252..255 are reserved / not available)
+    latching = False  # PGN 128006/128008 have no command-timeout fault to report a latch with
     PRIORITY = 2
     _OFF, _READY, _TO_PORT, _TO_STARBOARD = 0, 1, 2, 3
     _MOTOR_FAULTS = ((1, FAULT_OVERTEMPERATURE), (2, FAULT_OVERCURRENT), (16, FAULT_HARDWARE))
@@ -158,13 +182,12 @@ class Nmea2000Codec(ThrusterCodec):
         thruster_address: int = 0x20,
         command_timeout: float = 0.25,
     ) -> None:
-        super().__init__(n_max, dbc)
+        super().__init__(n_max, dbc, min(command_timeout, 0.253))
         self._ctrl = self.db.get_message_by_name("PGN_128006_ThrusterControlStatus")
         self._motor = self.db.get_message_by_name("PGN_128008_ThrusterMotorStatus")
         self.sa = source_address
         self.thr_sa = thruster_address
-        self.timeout = min(command_timeout, 0.253)
-        self._sid = 0
+        self.timeout = self.command_timeout  # on the wire in every demand (0.001 s, at most 0.253)
 
     @staticmethod
     def pgn(arbitration_id: int) -> int:
@@ -253,8 +276,8 @@ class Nmea2000Codec(ThrusterCodec):
         speed = sign * pct / 100.0 * float(self.n_max[i])
         enabled = bool(d["Power_Enabled"] == 1) and direction != self._OFF
         if (msg.arbitration_id & 0xFF) == self.sa:
-            return Command(i, speed, enabled)
-        return Feedback(i, speed, enabled, None)
+            return Command(i, speed, enabled, int(d["SID"]))
+        return self._plausible(Feedback(i, speed, enabled, None), m.name)
 
 
 def make_codec(
@@ -263,10 +286,10 @@ def make_codec(
     dbc: Path,
     source_address: int = 0x10,
     thruster_address: int = 0x20,
-    command_timeout: float = 0.25,
+    command_timeout: float = 0.5,
 ) -> ThrusterCodec:
     if mapping == "seafmu":
-        return SeafmuCodec(n_max, dbc)
+        return SeafmuCodec(n_max, dbc, command_timeout)
     if mapping == "nmea2000":
         return Nmea2000Codec(n_max, dbc, source_address, thruster_address, command_timeout)
     raise ValueError(f"unknown CAN mapping {mapping!r} (seafmu, nmea2000)")

@@ -7,8 +7,11 @@ time and speaks exactly what the hardware link expects from a vessel:
   noisy measurements; the profile's sentence mapping);
 - thruster command frames are read from the CAN bus (the profile's DBC mapping), applied to the
   shafts, and answered with status frames (measured shaft speed, enable, fault bits) at
-  ``--status-rate``; a thruster whose commands stop for ``command_timeout`` stops and raises its
-  command-timeout fault bit, as a real drive does.
+  ``--status-rate``. The drives check every frame as a real drive must (``hardware/drive.py``):
+  only frames whose alive counter advances count; a thruster without one for ``command_timeout``
+  stops, disables, raises its command-timeout fault bit and logs one line (stderr) — whatever
+  happened to the controller, SIGKILL included — and, with the seafmu DBC, runs again only after
+  an enable 0 -> 1 edge.
 
 The vessel waits "in the dock" until the first command frame arrives: its physics clock starts
 then, so an emulator started before seafmu is at t = 0 when seafmu's loop is; until then it sends
@@ -22,11 +25,12 @@ and symlinked at PATH) is the port to give the link. The same for the CAN channe
 from __future__ import annotations
 
 import argparse
-import math
+import logging
 import signal
 import sys
 import threading
 from collections import Counter
+from collections.abc import Callable
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -35,13 +39,16 @@ import numpy as np
 
 from components.plant import PlantBlock
 from components.vessel_spec import load_vessel
-from hardware.canbus import FAULT_COMMAND_TIMEOUT, CanFrameError, Command
+from hardware.canbus import CanFrameError, Command
+from hardware.drive import CommandSupervisor
 from hardware.link import make_thruster_codec, sensor_mapping
 from hardware.nmea import NmeaCodec
 from hardware.pacing import Pacer
 from hardware.profile import CanConfig, HardwareProfile, SerialConfig, load_profile
 from hardware.ptybridge import NullModem
 from hardware.transport import CanPort, SerialLines
+
+log = logging.getLogger("seafmu.hardware.emulator")
 
 
 class VesselEmulator:
@@ -54,6 +61,7 @@ class VesselEmulator:
         step: float = 0.01,
         status_rate: float = 20.0,
         record: str | Path | None = None,
+        log_line: Callable[[str], None] | None = None,
     ) -> None:
         self.profile = profile
         self.spec = load_vessel(profile.vessel)
@@ -92,11 +100,19 @@ class VesselEmulator:
         self.step = step
         self.status_every = max(1, round(1.0 / (status_rate * step)))
         m = spec.thrusters.count
-        self.cmd = np.zeros(m)
-        self.enable = np.zeros(m, dtype=bool)
-        self.last_cmd = np.full(m, -math.inf)
+        self.log_lines: list[str] = []
+        self._log_line = log_line or log.warning
+        self.drive = CommandSupervisor(
+            self.codec.n_max,
+            self.codec.command_timeout,
+            self.codec.counter_modulus,
+            profile.command_counter_max_delta,
+            self.codec.latching,
+            log=self._say,
+        )
         self.faults = np.zeros(m, dtype=int)
         self.started = False
+        self.pacer: Pacer | None = None  # loop time t of the drive's events = pacer.t0 + t (perf_counter)
         self.t = 0.0
         self.silenced: set[str] = set()  # sensors not sent (fault injection: sensor silence)
         self.stop_event = threading.Event()
@@ -105,6 +121,10 @@ class VesselEmulator:
             self._record.write(
                 ",".join(["time", *spec.eta_names, *spec.nu_names, *[f"n_{i + 1}" for i in range(m)]]) + "\n"
             )
+
+    def _say(self, text: str) -> None:
+        self.log_lines.append(text)
+        self._log_line(text)
 
     def open(self) -> None:
         if not self.serial.open() or not self.can.open():
@@ -130,19 +150,14 @@ class VesselEmulator:
                 continue
             if not isinstance(item, Command):
                 continue
-            lim = float(self.codec.n_max[item.index])
-            speed = item.speed if math.isfinite(item.speed) else 0.0
-            self.cmd[item.index] = min(max(speed, -lim), lim)
-            self.enable[item.index] = item.enable
-            self.last_cmd[item.index] = now
-            if not self.started:  # commanding begins: every drive's timeout counts from now
-                self.started = True
-                self.last_cmd[:] = now
+            self.drive.receive(item, now)  # the first one starts every drive's timeout
+            self.started = True
 
     def run(self, duration: float | None = None) -> None:
         """Run until ``duration`` s of vessel time (after the first command) or ``stop_event``."""
         # sleep only, no busy-wait: the null-modem threads need the GIL, and a vessel keeps its own time
         pacer = Pacer(self.step, spin=0.0)
+        self.pacer = pacer
         h = self.step
         y = self.plant.output()
         next_idle = [0.0] * len(self.groups)
@@ -169,26 +184,20 @@ class VesselEmulator:
             self.t = (k - k0) * h
             if duration is not None and self.t >= duration - 1e-9:
                 break
-            timed_out = (wall - self.last_cmd) > self.profile.command_timeout
-            self.faults = np.where(
-                timed_out, self.faults | FAULT_COMMAND_TIMEOUT, self.faults & ~FAULT_COMMAND_TIMEOUT
-            )
-            u = np.where(self.enable & ~timed_out, self.cmd, 0.0)
+            tripped = self.drive.update(wall)
+            u, on = self.drive.output()
+            self.faults = self.drive.faults()
             y = self.plant.step(self.t, h, u)
             new = [gi for gi, g in enumerate(self.groups) if y[g[3]] != counts[gi]]
             if new:
                 for gi in new:
                     counts[gi] = y[self.groups[gi][3]]
                 self.serial.write(self._sentences(y, datetime.now(UTC), new))
-            if (k - k0) % self.status_every == 0:
-                for i in range(len(u)):
-                    for msg in self.codec.status(
-                        i,
-                        float(y[self._n_idx[i]]),
-                        bool(self.enable[i] and not timed_out[i]),
-                        int(self.faults[i]),
-                        k,
-                    ):
+            due = (k - k0) % self.status_every == 0
+            for i in range(len(u)):
+                if due or tripped[i]:  # a trip is reported at once
+                    n_i = float(y[self._n_idx[i]])
+                    for msg in self.codec.status(i, n_i, bool(on[i]), int(self.faults[i]), k):
                         self.can.send(msg)
             self._write_true(y, self.t + h)
             k += 1
@@ -252,6 +261,12 @@ def build_parser(p: argparse.ArgumentParser | None = None) -> argparse.ArgumentP
     p.add_argument("--step", type=float, default=0.01, help="physics step, s (default 0.01)")
     p.add_argument("--status-rate", type=float, default=20.0, help="thruster status frames per second")
     p.add_argument(
+        "--command-timeout",
+        type=float,
+        help="s: a drive without a fresh command (alive counter advancing) for this long stops "
+        "(default: the profile's command_timeout, 0.5)",
+    )
+    p.add_argument(
         "--duration", type=float, help="stop after this much vessel time, s (default: until Ctrl-C)"
     )
     p.add_argument("--record", help="CSV file for the true state (what a real vessel cannot tell)")
@@ -293,13 +308,23 @@ def run_args(args: argparse.Namespace) -> int:
                     "sensors": base.sensors,
                     "talkers": base.talkers,
                     "command_timeout": base.command_timeout,
+                    "command_counter_max_delta": base.command_counter_max_delta,
                 }
                 if base
                 else {}
             ),
         )
+        if args.command_timeout is not None:
+            profile = profile.model_copy(update={"command_timeout": args.command_timeout})
+            if not args.command_timeout > 0:
+                raise ValueError(f"--command-timeout must be > 0, got {args.command_timeout:g}")
         emu = VesselEmulator(
-            profile, _plant_params(args.scenario, args.set), args.step, args.status_rate, args.record
+            profile,
+            _plant_params(args.scenario, args.set),
+            args.step,
+            args.status_rate,
+            args.record,
+            log_line=lambda text: print(f"seafmu emulate: {text}", file=sys.stderr, flush=True),
         )
         emu.open()
         stop = emu.stop_event

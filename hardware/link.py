@@ -12,8 +12,9 @@ FMU's variable names, so the observer, controller and allocator FMUs connect to 
 - ``n_1..m`` is the thrusters' measured shaft speed from their CAN status frames (NaN before the
   first); ``course`` and ``sog`` exist when a mapped sentence (RMC, VTG) carries them.
 - link status: ``fault_i`` (the thruster's fault bits), ``watchdog_alarm`` (0/1),
-  ``lines_dropped``, ``frames_dropped`` (bad input, running totals), ``commands_limited``
-  (commands clamped or replaced because NaN), ``port_losses``.
+  ``lines_dropped``, ``frames_dropped`` (bad input, running totals; physically implausible values
+  included, ``hardware/plausibility.py``), ``commands_limited`` (commands clamped or replaced
+  because NaN), ``port_losses``.
 
 The true state (``north``, ``u``, ``thrust_i`` ...) of a real vessel is unknown: those plant
 outputs are left out, so a scenario that connects or checks them fails validation by name.
@@ -29,14 +30,29 @@ zero setpoints are on the bus no later than ``timeout`` after the last datum arr
 ``timeout - 2h`` and ``timeout - h``, plus the step jitter). Zero frames (enable off) go out at
 once, and every step while the alarm lasts. It clears when every watched source has delivered a
 new sample and is fresh again; the commands then ramp from 0 over ``resume_ramp``.
+
+Drives: every command frame carries an alive counter (+1 per frame); a drive stops a thruster
+whose fresh commands stop for its command timeout (``hardware/drive.py``), which covers what the
+link cannot: a killed or hung process. When a drive reports that timeout (fault bit 4), the link
+acknowledges it with one enable-0 frame for that thruster and ramps it up from zero again.
+
+Stopping: ``close()`` (also ``terminate()``, and ``close_all_links()`` for every open link, e.g.
+from a signal handler, and at interpreter exit) sends zero setpoints with enable 0, closes the
+ports and completes the recording; it is idempotent, never raises, and when it interrupts the
+link's own I/O (a signal handler running inside ``do_step``) it is carried out as soon as that
+I/O ends, before ``do_step`` returns. Any step after it raises ``LinkClosed``.
 """
 
 from __future__ import annotations
 
+import atexit
+import contextlib
 import logging
 import math
 import time
+import weakref
 from collections import Counter
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -46,7 +62,7 @@ from cantools.database.errors import EncodeError
 from components.block import Interface, Signal
 from components.thrusters import speed_to_thrust
 from components.vessel_spec import VesselSpec, load_vessel, state_unit
-from hardware.canbus import CanFrameError, Command, Feedback, ThrusterCodec, make_codec
+from hardware.canbus import FAULT_COMMAND_TIMEOUT, CanFrameError, Command, Feedback, ThrusterCodec, make_codec
 from hardware.nmea import EXTRA_CHANNELS, SENTENCES, NmeaCodec, NmeaError, check_mapping, default_sentences
 from hardware.pacing import Pacer, PacingStats
 from hardware.profile import HardwareProfile, load_profile
@@ -56,13 +72,36 @@ from hardware.transport import CanPort, SerialLines
 log = logging.getLogger("seafmu.hardware")
 
 THRUSTERS = "thrusters"  # watchdog source name of the CAN status frames
-LINE_CLASSES = ("checksum", "malformed", "invalid", "line_too_long")
-FRAME_CLASSES = ("unknown_id", "wrong_dlc", "decode", "unexpected", "bus_error", "tx_timeout")
+LINE_CLASSES = ("checksum", "malformed", "invalid", "implausible", "line_too_long")
+FRAME_CLASSES = (
+    "unknown_id", "wrong_dlc", "decode", "unexpected", "implausible_feedback", "bus_error", "tx_timeout"
+)
 LOG_FIRST = 5  # one-line log messages per drop class before they are only counted
+CLOSE_ROUNDS = 3  # zero + disable frames per thruster sent by close(), each with a fresh alive counter
+FLUSH_EVERY = 1.0  # s: the recording is flushed to disk this often (what a SIGKILL can lose)
 
 
 class HardwareError(RuntimeError):
     """The link cannot start (port, profile, vessel); one line saying what and where."""
+
+
+class LinkClosed(HardwareError):
+    """A step after ``close()``: the thrusters were stopped and the ports closed."""
+
+
+_OPEN_LINKS: weakref.WeakSet[HardwareLink] = weakref.WeakSet()
+
+
+def close_all_links() -> int:
+    """``close()`` every open link of this process (zero + disable, ports, recording); the number
+    closed now. For signal handlers and exit paths that do not hold the link objects; idempotent."""
+    done = 0
+    for link in list(_OPEN_LINKS):
+        done += bool(link.close())
+    return done
+
+
+atexit.register(close_all_links)  # a run that ends without terminate() still stops the thrusters
 
 
 def sensor_mapping(profile: HardwareProfile, spec: VesselSpec) -> dict[str, list[str]]:
@@ -216,10 +255,18 @@ class HardwareLink:
         self._last_feedback = -math.inf
         self._prev_poll = 0.0  # loop time of the previous poll: the earliest a new datum can have come
         self._counter = 0
+        self._sent_enable = np.zeros(m, dtype=bool)
         self.alarm = False
         self.alarm_since = 0.0
         self.alarms: list[tuple[float, float | None, str]] = []  # (start, end, reason)
-        self._ramp_start: float | None = None
+        self._ramp_start = np.full(m, np.nan)  # per thruster: loop time its ramp from 0 began
+        self._rearm: set[int] = set()  # thrusters whose drive reported a command timeout
+        self._opened = False
+        self._busy = 0  # > 0 while the link does I/O (a close() from a signal handler then waits)
+        self._close_pending = False
+        self._closing = False
+        self._closed = False
+        self._last_flush = 0.0
         self.record_dir = Path(record_dir) if record_dir else (Path(p.record.dir) if p.record.dir else None)
         self.recorder: Recorder | None = None
         self._t = 0.0
@@ -272,11 +319,15 @@ class HardwareLink:
         ]
         outputs += [
             Signal("watchdog_alarm", "", "1 while the watchdog holds the thrusters at zero"),
-            Signal("lines_dropped", "", "NMEA lines dropped (checksum, malformed, invalid, too long), total"),
+            Signal(
+                "lines_dropped",
+                "",
+                "NMEA lines dropped (checksum, malformed, invalid, implausible value, too long), total",
+            ),
             Signal(
                 "frames_dropped",
                 "",
-                "CAN frames dropped (unknown id, wrong DLC, undecodable, bus errors), total",
+                "CAN frames dropped (unknown id, wrong DLC, undecodable, implausible, bus errors), total",
             ),
             Signal("commands_limited", "", "thruster commands clamped to n_max or replaced (NaN), total"),
             Signal("port_losses", "", "times the serial or CAN port was lost, total"),
@@ -286,7 +337,13 @@ class HardwareLink:
     # -- the master's unit protocol ----------------------------------------------------------------
     def open(self) -> None:
         """Open the ports (and the recording); ``initialize`` does it if not done before."""
+        with self._io():
+            self._open()
+
+    def _open(self) -> None:
         p = self.profile
+        self._opened = True
+        _OPEN_LINKS.add(self)
         if self.record_dir is not None and self.recorder is None:
             self.recorder = Recorder(self.record_dir, p.record.can_format)
             self.serial.on_bytes = self.recorder.serial_bytes
@@ -301,7 +358,7 @@ class HardwareLink:
             )
         for port in (self.serial, self.can):
             if not port.is_open and not port.open():
-                self.terminate()
+                self._close_pending = True  # closed as the I/O section ends
                 raise HardwareError(
                     f"{self.name}: cannot open {port.what} port {port.name} (profile {p.name})"
                 )
@@ -315,13 +372,14 @@ class HardwareLink:
         self._clock0 = time.perf_counter()
         self._prev_poll = 0.0
         while True:
-            self._poll(self._now())
+            with self._io():
+                self._poll(self._now())
             missing = [g.name for g in self.groups.values() if g.samples == 0]
             if not missing or time.perf_counter() > t_end:
                 break
             time.sleep(0.005)
         if missing:
-            self.terminate()
+            self.close()
             raise HardwareError(
                 f"{self.name}: no complete sample from {', '.join(missing)} within "
                 f"{p.startup_timeout:g} s on {p.serial.url} (profile {p.name})"
@@ -342,6 +400,14 @@ class HardwareLink:
         return self._y
 
     def do_step(self, t: float, h: float) -> None:
+        with self._io():
+            self._step_send(t, h)
+        if self.pace:
+            self.pacer.wait_for(t + h)  # not inside _io: a close() from a signal handler acts at once
+        with self._io():
+            self._step_read(t, h)
+
+    def _step_send(self, t: float, h: float) -> None:
         if self._clock0 is None:  # first step: loop time t is now
             if self.profile.watchdog.timeout <= 2 * h:
                 raise HardwareError(
@@ -360,9 +426,9 @@ class HardwareLink:
                 g.last_rx = t
             self._last_feedback = t
             self._prev_poll = t
-        self._send(self._commands(t))
-        if self.pace:
-            self.pacer.wait_for(t + h)
+        self._send(*self._commands(t))
+
+    def _step_read(self, t: float, h: float) -> None:
         now = self._now()
         self._poll(now)
         self._watchdog(now, h)
@@ -373,6 +439,9 @@ class HardwareLink:
             n = np.where(np.isfinite(n), n, self._sent)  # before the first feedback: the command
             thrust = speed_to_thrust(self.spec.thrusters, n)
             self.recorder.row(t + h, np.concatenate([self._sent, self._y, thrust]))
+            if now - self._last_flush >= FLUSH_EVERY:
+                self._last_flush = now
+                self.recorder.flush()
 
     def set_value(self, var: str, value: Any) -> None:
         if var not in self.all_inputs:
@@ -380,17 +449,83 @@ class HardwareLink:
         self._u[self.all_inputs.index(var)] = float(value)
 
     def terminate(self) -> None:
-        """Stop the thrusters (zero, disabled), close the ports and the recording."""
-        if self.can.is_open:
-            self._send(np.zeros(len(self._u)), enable=False)
-        self.serial.close()
-        self.can.close()
+        """The master's end of the run: ``close()``."""
+        self.close()
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    def close(self) -> bool:
+        """Stop the thrusters and release everything; True once done (now or before).
+
+        Sends zero setpoints with enable 0 to every thruster (CLOSE_ROUNDS frames each, every one
+        with a fresh alive counter, so a drive takes them), closes the serial and CAN ports, and
+        completes the recording (link totals in link.log, the CAN log terminated, signals.csv
+        flushed, trial.yaml written). Idempotent and never raises: each part that fails is
+        logged and the rest still done. Called while the link is inside its own I/O — from a
+        signal handler that interrupted ``do_step``, or another thread — it returns False and
+        the close happens when that I/O section ends (within the step, before ``do_step``
+        returns or raises). A step after close raises ``LinkClosed``.
+        """
+        if self._closed or self._closing:
+            return True
+        if self._busy:
+            self._close_pending = True
+            return False
+        self._closing = True
+        try:
+            self._close_now()
+        finally:
+            self._closed = True
+            self._closing = False
+            _OPEN_LINKS.discard(self)
+        return True
+
+    def _close_now(self) -> None:
+        def guarded(what: str, fn: Any) -> None:
+            try:
+                fn()
+            except Exception as exc:  # a dead port or a full disk must not stop the rest
+                with contextlib.suppress(Exception):
+                    self._say(f"close: {what} failed ({type(exc).__name__}: {exc})")
+
+        def stop_thrusters() -> None:
+            if not self._opened:
+                return
+            m = len(self._u)
+            for k in range(CLOSE_ROUNDS):
+                if k:
+                    time.sleep(0.002)  # let a small adapter queue drain between rounds
+                self._send(np.zeros(m), np.zeros(m, dtype=bool))
+            self._say(f"closed: zero setpoints, enable 0 sent to {m} thrusters ({CLOSE_ROUNDS} rounds)")
+
+        guarded("stopping the thrusters", stop_thrusters)
+        guarded("closing the serial port", self.serial.close)
+        guarded("closing the CAN port", self.can.close)
         if self.counters:
-            self._say(f"link totals: {dict(sorted(self.counters.items()))}")
-        if self.recorder is not None:
-            self.recorder.write_trial(self._trial_meta())
-            self.recorder.close()
+            totals = dict(sorted(self.counters.items()))
+            guarded("logging the totals", lambda: self._say(f"link totals: {totals}"))
+        rec = self.recorder
+        if rec is not None:
             self.recorder = None
+            self.serial.on_bytes = None
+            guarded("writing trial.yaml", lambda: rec.write_trial(self._trial_meta()))
+            guarded("closing the recording", rec.close)
+
+    @contextlib.contextmanager
+    def _io(self) -> Iterator[None]:
+        """A section of port or recording I/O: a close() arriving meanwhile waits for its end."""
+        if self._closed or self._closing:
+            raise LinkClosed(f"{self.name}: the link is closed (thrusters stopped, ports closed)")
+        self._busy += 1
+        try:
+            yield
+        finally:
+            self._busy -= 1
+            if self._close_pending and not self._busy:
+                self._close_pending = False
+                self.close()
 
     # -- internals -----------------------------------------------------------------------------
     def _now(self) -> float:
@@ -414,8 +549,9 @@ class HardwareLink:
     def _drop(self, kind: str, detail: str) -> None:
         self._report(kind, f"dropped ({kind}): {detail}")
 
-    def _commands(self, t: float) -> np.ndarray:
-        """Allocator commands made safe: finite, within +-n_max, scaled by the watchdog."""
+    def _commands(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """Allocator commands made safe: finite, within +-n_max, scaled by the watchdog and the
+        ramps; with the enable of each thruster (off during an alarm, and once to re-arm a drive)."""
         u = self._u.copy()
         bad = ~np.isfinite(u)
         if bad.any():
@@ -426,22 +562,32 @@ class HardwareLink:
         if over.any():
             self.counters["command_clamped"] += int(over.sum())
             u = np.clip(u, -self.n_max, self.n_max)
+        en = np.full(len(u), not self.alarm)
         if self.alarm:
-            return np.zeros_like(u)
-        if self._ramp_start is not None:
+            return np.zeros_like(u), en
+        now = self._now()
+        if self._rearm:  # acknowledge a drive's command timeout: enable 0 once, then ramp from 0
+            idx = sorted(self._rearm)
+            self._rearm.clear()
+            u[idx] = 0.0
+            en[idx] = False
+            self._ramp_start[idx] = now
+        ramping = np.isfinite(self._ramp_start)
+        if ramping.any():
             ramp = self.profile.watchdog.resume_ramp
-            f = 1.0 if ramp <= 0 else min(1.0, (self._now() - self._ramp_start) / ramp)
-            if f >= 1.0:
-                self._ramp_start = None
+            f = np.ones(len(u))
+            f[ramping] = 1.0 if ramp <= 0 else np.clip((now - self._ramp_start[ramping]) / ramp, 0.0, 1.0)
+            self._ramp_start[ramping & (f >= 1.0)] = np.nan
             u *= f
-        return u
+        return u, en
 
-    def _send(self, u: np.ndarray, enable: bool | None = None) -> None:
-        en = (not self.alarm) if enable is None else enable
+    def _send(self, u: np.ndarray, enable: bool | np.ndarray) -> None:
+        """One command frame per thruster, all with the next alive counter."""
+        en = np.broadcast_to(np.asarray(enable, dtype=bool), (len(u),))
         stamp = time.time()
         for i, v in enumerate(u):
             try:
-                msg = self.codec.command(i, float(v), en, self._counter)
+                msg = self.codec.command(i, float(v), bool(en[i]), self._counter)
             except (EncodeError, ValueError, OverflowError) as exc:  # never expected after the clamp
                 self._drop("command_encode", f"thruster {i + 1}: {exc}")
                 continue
@@ -449,6 +595,7 @@ class HardwareLink:
                 self.recorder.frame(msg, rx=False, timestamp=stamp)
         self._counter += 1
         self._sent = np.asarray(u, dtype=float).copy()
+        self._sent_enable = en.copy()
 
     def _poll(self, now: float) -> None:
         since = self._prev_poll  # what arrives now came after the previous poll: stamp it so (safe side)
@@ -507,6 +654,14 @@ class HardwareLink:
             if fb.faults != old:
                 self._say(f"thruster {fb.index + 1} fault bits {int(old)} -> {fb.faults} at t = {now:.2f} s")
             self._y[self._slot[f"fault_{fb.index + 1}"]] = fb.faults
+            i = fb.index
+            if fb.faults & FAULT_COMMAND_TIMEOUT and self._sent_enable[i] and i not in self._rearm:
+                self._rearm.add(i)
+                self._report(
+                    "drive_timeout",
+                    f"thruster {i + 1}: the drive reports a command timeout at t = {now:.2f} s: "
+                    f"re-arming (enable 0, then a ramp from 0 over {self.profile.watchdog.resume_ramp:g} s)",
+                )
         self._last_feedback = now
 
     def _ages(self, now: float) -> dict[str, float]:
@@ -521,7 +676,7 @@ class HardwareLink:
         if not self.alarm and stale:
             self.alarm = True
             self.alarm_since = now
-            self._ramp_start = None
+            self._ramp_start[:] = np.nan
             self._send(np.zeros(len(self._u)), enable=False)
             why = ", ".join(f"{s} silent {a:.2f} s" for s, a in stale.items())
             self.alarms.append((now, None, why))
@@ -530,7 +685,7 @@ class HardwareLink:
             fresh_since_alarm = all(a <= now - self.alarm_since for a in ages.values())
             if fresh_since_alarm:
                 self.alarm = False
-                self._ramp_start = now
+                self._ramp_start[:] = now
                 start, _, why = self.alarms[-1]
                 self.alarms[-1] = (start, now, why)
                 self._say(

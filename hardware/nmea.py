@@ -25,11 +25,16 @@ with the body axes (x forward, y starboard, z down).
 Why some of this is hand-written: pynmea2 parses and renders sentences and checks checksums, but
 knows nothing of a local NED frame; the flat-earth conversion below (WGS-84 radii of curvature at
 the origin) is exact to well under a millimetre over the few hundred metres a DP vessel moves.
+
+Every decoded value is checked against ``hardware/plausibility.py`` (latitude, longitude and
+heading on the wire; each channel in SI): a sentence with a value outside its limits, or one that
+overflows to inf in the conversion, is dropped as ``implausible``.
 """
 
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -38,6 +43,7 @@ import pynmea2
 from pynmea2.types.proprietary.nor import NOR
 
 from components.vessel_spec import SensorSpec
+from hardware.plausibility import check_channels, violation
 
 KNOT = 1852.0 / 3600.0  # m/s
 _A = 6378137.0  # WGS-84 semi-major axis, m
@@ -52,7 +58,9 @@ class THS(pynmea2.TalkerSentence):
 
 
 class NmeaError(ValueError):
-    """A line that cannot be used; ``kind`` is its drop class (counted by the link)."""
+    """A line that cannot be used; ``kind`` is its drop class (counted by the link): ``checksum``,
+    ``malformed``, ``invalid`` (the sender says so), ``implausible`` (well-formed, physically
+    impossible: hardware/plausibility.py), ``unsupported`` (valid, nothing of ours)."""
 
     def __init__(self, kind: str, msg: str) -> None:
         super().__init__(msg)
@@ -132,15 +140,36 @@ def _lon_str(lon: float) -> tuple[str, str]:
     return f"{d:03d}{m:010.7f}", "E" if lon >= 0 else "W"
 
 
+_COORD = re.compile(r"^(\d*)(\d\d(?:\.\d*)?)$")  # (degrees)(mm[.mmmm]): minutes = 2 digits before the point
+
+
 def _parse_latlon(value: str, hemi: str, deg_digits: int, what: str) -> float:
-    if len(value) < deg_digits + 1 or hemi not in ("N", "S", "E", "W"):
+    """ddmm.mmmm / dddmm.mmmm: the minutes are the two digits before the decimal point, the
+    degrees all digits before them (leading zeros may be missing; a third latitude digit is read,
+    not cut off, so 20000.0,N is 200 deg and dropped as implausible rather than misread as 20)."""
+    hemis = ("N", "S") if deg_digits == 2 else ("E", "W")
+    match = _COORD.match(value)
+    if match is None or hemi not in hemis:
         raise NmeaError("malformed", f"{what}: bad coordinate {value!r} {hemi!r}")
-    d = _num(value[:deg_digits], what)
-    m = _num(value[deg_digits:], what)
+    d = float(match.group(1) or 0)
+    m = float(match.group(2))
     if not 0.0 <= m < 60.0:
         raise NmeaError("malformed", f"{what}: minutes out of range ({value!r})")
     v = d + m / 60.0
-    return -v if hemi in ("S", "W") else v
+    v = -v if hemi in ("S", "W") else v
+    why = violation("latitude" if deg_digits == 2 else "longitude", v)
+    if why:
+        raise NmeaError("implausible", f"{what}: {why}")
+    return v
+
+
+def _heading_field(text: str, what: str) -> float:
+    """A true heading or course on the wire (deg, 0-360) as radians in (-pi, pi]."""
+    deg = _num(text, what)
+    why = violation("heading", deg)
+    if why:
+        raise NmeaError("implausible", f"{what}: {why}")
+    return _wrap(math.radians(deg))
 
 
 def _utc(t: datetime) -> str:
@@ -226,7 +255,7 @@ def _dec_rmc(m: pynmea2.NMEASentence, ctx: Ctx) -> dict[str, float]:
     if _field(m, 6, "RMC speed"):
         out["sog"] = _num(m.data[6], "RMC speed") * KNOT
     if _field(m, 7, "RMC course"):
-        out["course"] = _wrap(math.radians(_num(m.data[7], "RMC course")))
+        out["course"] = _heading_field(m.data[7], "RMC course")
     return out
 
 
@@ -240,7 +269,7 @@ def _enc_vtg(v: dict[str, float], t: datetime, ctx: Ctx) -> pynmea2.NMEASentence
 
 
 def _dec_vtg(m: pynmea2.NMEASentence, ctx: Ctx) -> dict[str, float]:
-    course = _wrap(math.radians(_num(_field(m, 0, "VTG course"), "VTG course")))
+    course = _heading_field(_field(m, 0, "VTG course"), "VTG course")
     if _field(m, 4, "VTG speed (kn)"):
         sog = _num(m.data[4], "VTG speed (kn)") * KNOT
     else:
@@ -260,7 +289,7 @@ def _dec_heading(m: pynmea2.NMEASentence, ctx: Ctx) -> dict[str, float]:
     kind = type(m).__name__
     if kind == "THS" and _field(m, 1, "THS mode") == "V":
         raise NmeaError("invalid", "THS: mode V (data not valid)")
-    return {"yaw": _wrap(math.radians(_num(_field(m, 0, f"{kind} heading"), f"{kind} heading")))}
+    return {"yaw": _heading_field(_field(m, 0, f"{kind} heading"), f"{kind} heading")}
 
 
 def _enc_dpt(v: dict[str, float], t: datetime, ctx: Ctx) -> pynmea2.NMEASentence:
@@ -491,8 +520,12 @@ class NmeaCodec:
             name = "XDR_ATTITUDE" if ("roll" in values or "pitch" in values) else "XDR_RATES"
             if name == "XDR_ATTITUDE" and any(c in values for c in ("p", "q", "r")):
                 raise NmeaError("malformed", "XDR mixes attitude and rate transducers")
-            return name, values
-        name = _BY_TYPE.get(kind)
-        if name is None:
-            raise NmeaError("unsupported", f"sentence {kind or line[:8]!r} carries no plant channel")
-        return name, SENTENCES[name].decode(msg, self.ctx)
+        else:
+            name = _BY_TYPE.get(kind)
+            if name is None:
+                raise NmeaError("unsupported", f"sentence {kind or line[:8]!r} carries no plant channel")
+            values = SENTENCES[name].decode(msg, self.ctx)
+        why = check_channels(values)  # hardware/plausibility.py: the whole sentence or nothing
+        if why:
+            raise NmeaError("implausible", f"{name}: {why}")
+        return name, values

@@ -100,8 +100,16 @@ class HardwareProfile(_Strict):
     command_timeout: float = Field(
         0.5,
         gt=0,
-        description="s: the vessel side stops a thruster that "
-        "received no command for this long (emulator; 128006 Command Timeout)",
+        description="s: the drive (emulator; a real drive must be set to the same) stops and disables "
+        "a thruster that received no fresh command (alive counter advancing) for this long; "
+        "seafmu DBC: latched until enable 0 then 1; nmea2000: at most 0.253 (128006 Command Timeout)",
+    )
+    command_counter_max_delta: int = Field(
+        3,
+        ge=1,
+        le=15,
+        description="largest alive-counter advance a drive takes as fresh (1 + frames that may be lost "
+        "in a row); a repeated counter is always stale, a larger jump re-synchronises",
     )
     record: RecordConfig = Field(default_factory=RecordConfig)
     realtime_priority: int | None = Field(

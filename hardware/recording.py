@@ -40,6 +40,7 @@ class Recorder:
         self._csv: Any = None
         self._log = open(self.folder / "link.log", "w")
         self.columns: list[str] = []
+        self._closed = False
 
     def start_signals(self, columns: list[str], provenance: str) -> None:
         self.columns = ["time", *columns]
@@ -68,11 +69,26 @@ class Recorder:
         path.write_text(yaml.safe_dump(meta, sort_keys=False))
         return path
 
+    def flush(self) -> None:
+        """Push what is buffered to the OS, so a killed process loses at most the last interval."""
+        for f in (self._nmea, self._csv_file, self._log, getattr(self._can, "file", None)):
+            if f is not None and not getattr(f, "closed", False):
+                try:
+                    f.flush()
+                except (OSError, ValueError):  # a full disk or a closed file: the run goes on
+                    pass
+
     def close(self) -> None:
-        self._can.stop()
-        for f in (self._nmea, self._csv_file, self._log):
-            if f is not None:
-                f.close()
+        """Terminate the CAN log (its writer adds the end marker) and close the files; idempotent."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            self._can.stop()
+        finally:
+            for f in (self._nmea, self._csv_file, self._log):
+                if f is not None:
+                    f.close()
 
 
 def trial_meta(name: str, vessel: str, profile: str, columns: dict[str, str]) -> dict[str, Any]:

@@ -28,7 +28,7 @@ values = st.fixed_dictionaries(
         "east": st.floats(-5000.0, 5000.0),
         "down": st.floats(0.0, 6000.0),
         "roll": angle,
-        "pitch": angle,
+        "pitch": st.floats(-math.pi / 2, math.pi / 2),  # Euler pitch: beyond is implausible
         "yaw": angle,
         "u": speed,
         "v": speed,
@@ -84,7 +84,7 @@ def test_random_bytes_never_crash_the_nmea_decoder(data: bytes) -> None:
     try:
         CODEC.decode(text)
     except NmeaError as exc:
-        assert exc.kind in ("checksum", "malformed", "invalid", "unsupported")
+        assert exc.kind in ("checksum", "malformed", "invalid", "implausible", "unsupported")
 
 
 @settings(max_examples=300, deadline=None)
@@ -151,7 +151,7 @@ N2K = Nmea2000Codec(N_MAX, HERE / "nmea2000_thrusters.dbc")
 def test_can_round_trip(i: int, frac: float, enable: bool, counter: int, faults: int) -> None:
     n = frac * N_MAX[i]
     cmd = SEAFMU.decode(SEAFMU.command(i, n, enable, counter))
-    assert cmd == Command(i, pytest.approx(n, abs=0.005), enable)
+    assert cmd == Command(i, pytest.approx(n, abs=0.005), enable, counter % 16)  # the alive counter
     (st_msg,) = SEAFMU.status(i, n, enable, faults, counter)
     fb = SEAFMU.decode(st_msg)
     assert isinstance(fb, Feedback) and fb.index == i and fb.enabled == enable and fb.faults == faults
@@ -159,7 +159,7 @@ def test_can_round_trip(i: int, frac: float, enable: bool, counter: int, faults:
     # NMEA 2000: speed in whole percent of n_max, direction from the sign
     step = N_MAX[i] / 100.0
     c2 = N2K.decode(N2K.command(i, n, enable, counter))
-    assert isinstance(c2, Command) and c2.index == i and c2.enable == enable
+    assert isinstance(c2, Command) and c2.index == i and c2.enable == enable and c2.counter == counter % 252
     assert c2.speed == pytest.approx(n if enable else 0.0, abs=step / 2 + 1e-9)
     state, motor = N2K.status(i, n, enable, faults, counter)
     f_state, f_motor = N2K.decode(state), N2K.decode(motor)
@@ -183,7 +183,7 @@ def test_random_frames_never_crash_the_can_decoders(arb: int, ext: bool, data: b
         try:
             out = codec.decode(msg)
         except CanFrameError as exc:
-            assert exc.kind in ("unknown_id", "wrong_dlc", "decode", "unexpected")
+            assert exc.kind in ("unknown_id", "wrong_dlc", "decode", "unexpected", "implausible_feedback")
         else:
             assert isinstance(out, Command | Feedback) and 0 <= out.index < 7
 
