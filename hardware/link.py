@@ -49,6 +49,7 @@ import atexit
 import contextlib
 import logging
 import math
+import threading
 import time
 import weakref
 from collections import Counter
@@ -262,6 +263,7 @@ class HardwareLink:
         self._ramp_start = np.full(m, np.nan)  # per thruster: loop time its ramp from 0 began
         self._rearm: set[int] = set()  # thrusters whose drive reported a command timeout
         self._opened = False
+        self._lock = threading.RLock()  # I/O sections and close(): one thread at a time
         self._busy = 0  # > 0 while the link does I/O (a close() from a signal handler then waits)
         self._close_pending = False
         self._closing = False
@@ -402,8 +404,10 @@ class HardwareLink:
     def do_step(self, t: float, h: float) -> None:
         with self._io():
             self._step_send(t, h)
-        if self.pace:
+        if self.pace and not self._closed:
             self.pacer.wait_for(t + h)  # not inside _io: a close() from a signal handler acts at once
+        if self._closed:  # closed meanwhile (a signal handler, another thread): this step ends here
+            return
         with self._io():
             self._step_read(t, h)
 
@@ -463,24 +467,27 @@ class HardwareLink:
         with a fresh alive counter, so a drive takes them), closes the serial and CAN ports, and
         completes the recording (link totals in link.log, the CAN log terminated, signals.csv
         flushed, trial.yaml written). Idempotent and never raises: each part that fails is
-        logged and the rest still done. Called while the link is inside its own I/O — from a
-        signal handler that interrupted ``do_step``, or another thread — it returns False and
-        the close happens when that I/O section ends (within the step, before ``do_step``
-        returns or raises). A step after close raises ``LinkClosed``.
+        logged and the rest still done. From a signal handler that interrupted the link's own
+        I/O inside ``do_step`` it returns False and the close happens as that I/O section ends
+        (milliseconds; before ``do_step`` returns or raises) — never interleaved with a frame
+        being written. From another thread it waits for the current I/O section, then closes.
+        A ``do_step`` during which the link was closed returns without reading; the next one
+        raises ``LinkClosed``.
         """
-        if self._closed or self._closing:
+        with self._lock:  # another thread's I/O section ends first; this thread's own re-enters
+            if self._closed or self._closing:
+                return True
+            if self._busy:  # this thread is inside the link's I/O (a signal handler interrupted it)
+                self._close_pending = True
+                return False
+            self._closing = True
+            try:
+                self._close_now()
+            finally:
+                self._closed = True
+                self._closing = False
+                _OPEN_LINKS.discard(self)
             return True
-        if self._busy:
-            self._close_pending = True
-            return False
-        self._closing = True
-        try:
-            self._close_now()
-        finally:
-            self._closed = True
-            self._closing = False
-            _OPEN_LINKS.discard(self)
-        return True
 
     def _close_now(self) -> None:
         def guarded(what: str, fn: Any) -> None:
@@ -516,16 +523,17 @@ class HardwareLink:
     @contextlib.contextmanager
     def _io(self) -> Iterator[None]:
         """A section of port or recording I/O: a close() arriving meanwhile waits for its end."""
-        if self._closed or self._closing:
-            raise LinkClosed(f"{self.name}: the link is closed (thrusters stopped, ports closed)")
-        self._busy += 1
-        try:
-            yield
-        finally:
-            self._busy -= 1
-            if self._close_pending and not self._busy:
-                self._close_pending = False
-                self.close()
+        with self._lock:
+            self._busy += 1
+            try:
+                if self._closed or self._closing:  # checked after busy: a close either ran or waits
+                    raise LinkClosed(f"{self.name}: the link is closed (thrusters stopped, ports closed)")
+                yield
+            finally:
+                self._busy -= 1
+                if self._close_pending and not self._busy:
+                    self._close_pending = False
+                    self.close()
 
     # -- internals -----------------------------------------------------------------------------
     def _now(self) -> float:

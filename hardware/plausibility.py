@@ -50,7 +50,7 @@ LIMITS: dict[str, Limit] = {
     "down": Limit(
         -5.0, 11000.0, "m",
         "5 m above the surface (pressure-depth offset, waves) to the deepest ocean (Challenger "
-        "Deep, 10 935 m); catches overflow (DPT depth + offset) and feet/fathom unit errors of garbage",
+        "Deep, 10 935 m); catches overflow (DPT depth + offset, DBT fathoms x 1.8288) and sentinels",
     ),
     "roll": Limit(-math.pi, math.pi, "rad", "Euler angle range (ZYX): roll in [-180, 180] deg"),
     "pitch": Limit(-math.pi / 2, math.pi / 2, "rad", "Euler angle range (ZYX): pitch in [-90, 90] deg"),
@@ -58,8 +58,8 @@ LIMITS: dict[str, Limit] = {
     "course": Limit(-math.pi, math.pi, "rad", "course over ground, wrapped (wire: heading)"),
     "u": Limit(
         -20.0, 20.0, "m/s",
-        "about 39 kn: ten times the fastest vessel here (AMV OSF 2 m/s, Minerva 2 about 1 m/s); "
-        "catches overflow and mm/s or cm/s read as m/s",
+        "about 39 kn: ten times the fastest vessel here (AMV OSF max_forward_speed 2 m/s; Minerva 2 "
+        "CFD data up to 1 m/s); catches overflow and mm/s or cm/s read as m/s",
     ),
     "v": Limit(-20.0, 20.0, "m/s", "as u"),
     "w": Limit(-20.0, 20.0, "m/s", "as u"),
@@ -74,8 +74,8 @@ LIMITS: dict[str, Limit] = {
     # -- CAN feedback ----------------------------------------------------------------------------
     "speed_measured": Limit(
         -1.5, 1.5, "n_max",
-        "a drive's measured shaft speed: 50 % above the thruster's n_max (vessel file) is no "
-        "overspeed a drive survives; int16 x 0.01 rev/s allows +-327",
+        "a drive's measured shaft speed: drives limit their speed to n_max (vessel file), so 50 % "
+        "more is a decoding or drive error; the DBC's int16 x 0.01 rev/s would allow +-327",
         relative=True,
     ),
 }
@@ -101,3 +101,18 @@ def check_channels(values: dict[str, float]) -> str | None:
         elif not math.isfinite(value):
             return f"{name} = {value} is not finite"
     return None
+
+
+def limits_markdown() -> str:
+    """LIMITS as the Markdown table in docs/hardware.md (a test keeps the two equal)."""
+
+    def num(x: float) -> str:
+        for k, name in ((1, "π"), (0.5, "π/2")):
+            if abs(abs(x) - k * math.pi) < 1e-12:
+                return ("−" if x < 0 else "") + name
+        return f"{x:g}".replace("-", "−")
+
+    rows = ["| value | limits | unit | why |", "|---|---|---|---|"]
+    for name, lim in LIMITS.items():
+        rows.append(f"| `{name}` | {num(lim.lo)} … {num(lim.hi)} | {lim.unit} | {lim.source} |")
+    return "\n".join(rows)
