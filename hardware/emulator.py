@@ -111,8 +111,9 @@ class VesselEmulator:
             log=self._say,
         )
         self.faults = np.zeros(m, dtype=int)
+        self.n_shaft = np.zeros(m)  # the shafts' speed now (rev/s), what the status frames report
         self.started = False
-        self.pacer: Pacer | None = None  # loop time t of the drive's events = pacer.t0 + t (perf_counter)
+        self.pacer: Pacer | None = None
         self.t = 0.0
         self.silenced: set[str] = set()  # sensors not sent (fault injection: sensor silence)
         self.stop_event = threading.Event()
@@ -121,6 +122,12 @@ class VesselEmulator:
             self._record.write(
                 ",".join(["time", *spec.eta_names, *spec.nu_names, *[f"n_{i + 1}" for i in range(m)]]) + "\n"
             )
+
+    def perf_time(self, t: float) -> float:
+        """``time.perf_counter()`` of emulator loop time ``t`` (the drive's event times)."""
+        if self.pacer is None or self.pacer.t0 is None:
+            raise RuntimeError("the emulator has not run yet")
+        return self.pacer.t0 + t
 
     def _say(self, text: str) -> None:
         self.log_lines.append(text)
@@ -188,6 +195,7 @@ class VesselEmulator:
             u, on = self.drive.output()
             self.faults = self.drive.faults()
             y = self.plant.step(self.t, h, u)
+            self.n_shaft = y[self._n_idx]
             new = [gi for gi, g in enumerate(self.groups) if y[g[3]] != counts[gi]]
             if new:
                 for gi in new:

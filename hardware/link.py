@@ -262,6 +262,7 @@ class HardwareLink:
         self.alarms: list[tuple[float, float | None, str]] = []  # (start, end, reason)
         self._ramp_start = np.full(m, np.nan)  # per thruster: loop time its ramp from 0 began
         self._rearm: set[int] = set()  # thrusters whose drive reported a command timeout
+        self._rearm_at = np.full(m, -math.inf)  # loop time of each thruster's last re-arm frame
         self._opened = False
         self._lock = threading.RLock()  # I/O sections and close(): one thread at a time
         self._busy = 0  # > 0 while the link does I/O (a close() from a signal handler then waits)
@@ -580,6 +581,7 @@ class HardwareLink:
             u[idx] = 0.0
             en[idx] = False
             self._ramp_start[idx] = now
+            self._rearm_at[idx] = now
         ramping = np.isfinite(self._ramp_start)
         if ramping.any():
             ramp = self.profile.watchdog.resume_ramp
@@ -663,7 +665,10 @@ class HardwareLink:
                 self._say(f"thruster {fb.index + 1} fault bits {int(old)} -> {fb.faults} at t = {now:.2f} s")
             self._y[self._slot[f"fault_{fb.index + 1}"]] = fb.faults
             i = fb.index
-            if fb.faults & FAULT_COMMAND_TIMEOUT and self._sent_enable[i] and i not in self._rearm:
+            # a status sent before the drive took the re-arm frame still shows the fault: a new
+            # trip cannot be reported sooner than one command timeout after that (fresh) frame
+            recent = now - self._rearm_at[i] <= self.profile.command_timeout or i in self._rearm
+            if fb.faults & FAULT_COMMAND_TIMEOUT and self._sent_enable[i] and not recent:
                 self._rearm.add(i)
                 self._report(
                     "drive_timeout",
