@@ -79,7 +79,7 @@ FRAME_CLASSES = (
 )
 LOG_FIRST = 5  # one-line log messages per drop class before they are only counted
 CLOSE_ROUNDS = 3  # zero + disable frames per thruster sent by close(), each with a fresh alive counter
-FLUSH_EVERY = 1.0  # s: the recording is flushed to disk this often (what a SIGKILL can lose)
+FLUSH_EVERY = 1.0  # s: the raw logs (can.*, nmea.raw) are flushed this often (what a SIGKILL can lose)
 
 
 class HardwareError(RuntimeError):
@@ -359,6 +359,7 @@ class HardwareLink:
                 ],
                 f"seafmu hardware link recording, profile {p.name}, vessel {self.spec.name}",
             )
+            self.recorder.write_trial(self._trial_meta())  # now too: a killed run still leaves a trial
         for port in (self.serial, self.can):
             if not port.is_open and not port.open():
                 self._close_pending = True  # closed as the I/O section ends

@@ -11,6 +11,11 @@ A recording folder holds
   ``seafmu.identification``'s schema: the vessel, and which columns hold the measured eta and nu
   and the thrust of each thruster (``seafmu identify`` / ``load_trial`` read it);
 - ``link.log`` — the link's one-line messages (watchdog alarms, dropped input, lost ports).
+
+``trial.yaml`` is written when the recording starts and again when it closes; ``signals.csv`` and
+``link.log`` are line-buffered and the raw logs flushed every second, so a run that is killed
+(SIGKILL, power loss) leaves a loadable trial with every finished row; only ``can.*`` then lacks
+its end marker (python-can's readers take such a log as it is).
 """
 
 from __future__ import annotations
@@ -38,13 +43,14 @@ class Recorder:
         self._nmea = open(self.folder / "nmea.raw", "wb")
         self._csv_file: TextIO | None = None
         self._csv: Any = None
-        self._log = open(self.folder / "link.log", "w")
+        self._log = open(self.folder / "link.log", "w", buffering=1)  # line-buffered: survives a kill
         self.columns: list[str] = []
         self._closed = False
 
     def start_signals(self, columns: list[str], provenance: str) -> None:
         self.columns = ["time", *columns]
-        self._csv_file = open(self.folder / "signals.csv", "w", newline="")
+        # line-buffered (one write per step): every finished row survives a SIGKILL of the run
+        self._csv_file = open(self.folder / "signals.csv", "w", newline="", buffering=1)
         self._csv_file.write(f"# {provenance}\n")
         self._csv = csv.writer(self._csv_file)
         self._csv.writerow(self.columns)
