@@ -64,8 +64,10 @@ class Block(ABC):
     - ``step(t, h, u)`` advances from t to t + h with inputs ``u`` (aligned with
       ``interface.inputs``) held constant and returns the outputs at t + h;
     - ``set_parameter(name, value)`` changes a tunable parameter during the run;
-    - the whole internal state is deep-copyable (``copy.deepcopy``), which is how FMU state
-      get/set captures it.
+    - the whole internal state lives in plain attributes (numbers, NumPy arrays, random
+      generators, lists/dicts/tuples of them and helper objects of ``components`` classes), so
+      ``export_state`` can capture it as plain data and ``import_state`` write it back into a
+      live block (``components.state``); that is how FMU state get/set and serialisation work.
     """
 
     kind: ClassVar[str] = "block"
@@ -94,6 +96,18 @@ class Block(ABC):
     @abstractmethod
     def step(self, t: float, h: float, u: np.ndarray) -> np.ndarray:
         """Advance to t + h with inputs ``u`` held; return the outputs at t + h."""
+
+    def export_state(self) -> dict[str, Any]:
+        """The whole internal state as a tree of plain data (``components.state.capture``)."""
+        from components.state import capture
+
+        return capture(self)
+
+    def import_state(self, state: dict[str, Any]) -> None:
+        """Write a tree from ``export_state`` back into this block, checked; all or nothing."""
+        from components.state import restore
+
+        restore(self, state)
 
     def set_parameter(self, name: str, value: Any) -> None:
         """Default: tunable parameters are read from ``self.params`` at every step."""
