@@ -469,7 +469,8 @@ class HardwareLink:
         with a fresh alive counter, so a drive takes them), closes the serial and CAN ports, and
         completes the recording (link totals in link.log, the CAN log terminated, signals.csv
         flushed, trial.yaml written). Idempotent and never raises: each part that fails is
-        logged and the rest still done. From a signal handler that interrupted the link's own
+        logged and the rest still done (a KeyboardInterrupt / SystemExit arriving meanwhile is
+        raised after the close is complete). From a signal handler that interrupted the link's own
         I/O inside ``do_step`` it returns False and the close happens as that I/O section ends
         (milliseconds; before ``do_step`` returns or raises) — never interleaved with a frame
         being written. From another thread it waits for the current I/O section, then closes.
@@ -492,24 +493,29 @@ class HardwareLink:
             return True
 
     def _close_now(self) -> None:
+        interrupted: list[BaseException] = []
+
         def guarded(what: str, fn: Any) -> None:
             try:
                 fn()
             except Exception as exc:  # a dead port or a full disk must not stop the rest
                 with contextlib.suppress(Exception):
                     self._say(f"close: {what} failed ({type(exc).__name__}: {exc})")
+            except BaseException as exc:  # a second Ctrl-C: finish closing first, then let it through
+                interrupted.append(exc)
 
-        def stop_thrusters() -> None:
-            if not self._opened:
-                return
-            m = len(self._u)
-            for k in range(CLOSE_ROUNDS):
-                if k:
-                    time.sleep(0.002)  # let a small adapter queue drain between rounds
-                self._send(np.zeros(m), np.zeros(m, dtype=bool))
-            self._say(f"closed: zero setpoints, enable 0 sent to {m} thrusters ({CLOSE_ROUNDS} rounds)")
+        m = len(self._u)
 
-        guarded("stopping the thrusters", stop_thrusters)
+        def zero_round(k: int) -> None:
+            if k:
+                time.sleep(0.002)  # let a small adapter queue drain between rounds
+            self._send(np.zeros(m), np.zeros(m, dtype=bool))
+
+        if self._opened and self.can.is_open:  # never open a port just to close it
+            for k in range(CLOSE_ROUNDS):  # each round on its own: an interrupt skips none of the others
+                guarded("stopping the thrusters", lambda k=k: zero_round(k))
+            said = f"closed: zero setpoints, enable 0 sent to {m} thrusters ({CLOSE_ROUNDS} rounds)"
+            guarded("logging", lambda: self._say(said))
         guarded("closing the serial port", self.serial.close)
         guarded("closing the CAN port", self.can.close)
         if self.counters:
@@ -521,6 +527,8 @@ class HardwareLink:
             self.serial.on_bytes = None
             guarded("writing trial.yaml", lambda: rec.write_trial(self._trial_meta()))
             guarded("closing the recording", rec.close)
+        if interrupted:
+            raise interrupted[0]
 
     @contextlib.contextmanager
     def _io(self) -> Iterator[None]:
@@ -596,15 +604,16 @@ class HardwareLink:
         """One command frame per thruster, all with the next alive counter."""
         en = np.broadcast_to(np.asarray(enable, dtype=bool), (len(u),))
         stamp = time.time()
+        counter = self._counter
+        self._counter += 1  # first: an interrupted round must not leave its value to the next one
         for i, v in enumerate(u):
             try:
-                msg = self.codec.command(i, float(v), bool(en[i]), self._counter)
+                msg = self.codec.command(i, float(v), bool(en[i]), counter)
             except (EncodeError, ValueError, OverflowError) as exc:  # never expected after the clamp
                 self._drop("command_encode", f"thruster {i + 1}: {exc}")
                 continue
             if self.can.send(msg) and self.recorder is not None:
                 self.recorder.frame(msg, rx=False, timestamp=stamp)
-        self._counter += 1
         self._sent = np.asarray(u, dtype=float).copy()
         self._sent_enable = en.copy()
 

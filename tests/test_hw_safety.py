@@ -547,6 +547,33 @@ def test_close_inside_the_link_io_is_deferred_never_interleaved(
         link.do_step(t + 0.05, 0.05)
 
 
+def test_a_second_interrupt_during_close_is_raised_after_the_close_completes(
+    rig: Callable[..., tuple[HardwareLink, Vessel]], tmp_path: Path
+) -> None:
+    link, vessel = rig(record=tmp_path / "rec")
+    _steps(link, vessel, 2)
+    vessel.frames()
+    real_send = link.can.send
+    sent: list[int] = []
+
+    def send(msg: can.Message) -> bool:
+        sent.append(msg.arbitration_id)
+        if len(sent) == 3:
+            raise KeyboardInterrupt  # the user presses Ctrl-C again while the link closes
+        return real_send(msg)
+
+    link.can.send = send  # type: ignore[method-assign]
+    with pytest.raises(KeyboardInterrupt):
+        link.close()
+    assert link.closed and not link.can.is_open and not link.serial.is_open
+    stop = _decoded(link, vessel.frames())  # the interrupted round is partial, the others complete
+    assert len(stop) == 2 + (CLOSE_ROUNDS - 1) * 7 and all(not c.enable and c.speed == 0.0 for c in stop)
+    rounds = [c.counter for c in stop[2::7]]  # every round has its own counter: the drives take them
+    assert len(set(rounds)) == CLOSE_ROUNDS - 1 and stop[0].counter not in rounds
+    assert (tmp_path / "rec" / "can.asc").read_text().rstrip().endswith("End TriggerBlock")
+    assert link.close() is True  # and it stays closed
+
+
 @pytest.mark.parametrize("delay", [0.112, 0.147, 0.171])
 def test_close_from_a_real_signal_handler(
     rig: Callable[..., tuple[HardwareLink, Vessel]], delay: float
