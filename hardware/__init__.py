@@ -6,6 +6,8 @@
 - ``transport``: pyserial and python-can ports that never block and reopen when lost;
 - ``pacing.Pacer``: real-time pacing with real-time factor and jitter statistics;
 - ``emulator``: ``seafmu emulate`` — the plant model in real time behind the same protocols;
+- ``drive``: the drive-side command check (alive counter, command timeout, enable edge) the
+  emulator implements and a real drive must; ``plausibility``: limits of every decoded value;
 - ``link_fmu``: the link as an FMI 2.0 FMU; ``recording``: raw traffic and a maneuver trial;
 - ``profile``: hardware profiles (``profiles/*.yaml``). Guide: docs/hardware.md.
 """
