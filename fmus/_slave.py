@@ -188,7 +188,7 @@ class BlockSlave(Fmi2Slave):
         if cached is None:
             # The bundled vessel file only fixes the interface (thruster count, DOF, sensors); a
             # user vessel file named by the 'vessel_file' parameter is read at initialisation.
-            spec = load_vessel(self.VESSEL)
+            spec = load_vessel(self._bundled_vessel())
             cached = (spec, self.BLOCK.interface(spec))
             self._INTERFACES[type(self)] = cached
         self._spec = copy.deepcopy(cached[0])  # each instance its own (blocks keep a reference)
@@ -248,6 +248,12 @@ class BlockSlave(Fmi2Slave):
                    setter=lambda v: self._set_param(VESSEL_FILE, v))
         )
         self._n_vars = len(self.vars)
+
+    def _bundled_vessel(self) -> str:
+        """This FMU's own vessel file: ``components`` may have been imported from another seafmu
+        FMU's folder, which the host may have removed since (see the generated script)."""
+        own = os.path.join(self.resources or "", "components", "vessels", f"{self.VESSEL}.yaml")
+        return own if self.resources and os.path.isfile(own) else self.VESSEL
 
     def _register_parameter(self, p: Any) -> None:
         variability = Fmi2Variability.tunable if p.tunable else Fmi2Variability.fixed
