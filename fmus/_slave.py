@@ -17,6 +17,12 @@ fmi2.cpp) decides how errors travel, and is where memory safety is won or lost:
   over-releases those three objects by one: freed while still in use, a later
   ``fmi2Instantiate`` or ``fmi2FreeInstance`` reads freed memory (segfaults, glibc heap aborts).
   ``_escape`` gives each of the three one reference back, exactly once per escaped exception.
+  Measured with ``sys.getrefcount`` around a failing ``exitInitializationMode``: class,
+  instance and queue each lost one reference per call before, none now.
+* The state (de)serialisation is called on the class, not on an instance, so the caller is
+  known only when it is the one live instance of its FMU: then a refusal raises (with the
+  caller's references given back); otherwise the refused bytes become a rejected state that the
+  following ``fmi2SetFMUstate`` (an instance call) refuses.
 * ``do_step`` returning ``False`` is ``fmi2Discard``; it never raises.
 * The wrapper flushes the log queue after each call, and once more in ``fmi2FreeInstance`` after
   the FMI logger was already destroyed (``Fmi2Component`` declares ``slave`` before ``logger``).
@@ -39,6 +45,7 @@ import _ctypes
 import copy
 import ctypes
 import functools
+import gc
 import math
 import os
 import sys
@@ -102,31 +109,13 @@ def fmi_call(fn: Callable[..., Any]) -> Callable[..., Any]:
     return call
 
 
-def fmi_class_call(where: str) -> Callable[[Callable[..., Any]], Any]:
-    """The same for the state (de)serialisation, which the wrapper calls on the class, not on the
-    instance: the caller is unknown, so every hosted instance of the class gets its references
-    back (exact when there is one instance, the usual case; with several, the others are leaked,
-    never freed too early). The reason is logged by the instance only when it is unambiguous;
-    it is always in the exception, which the wrapper logs as fmi2Fatal."""
-
-    def wrap(fn: Callable[..., Any]) -> Any:
-        @functools.wraps(fn)
-        def call(cls: type[BlockSlave], *args: Any) -> Any:
-            try:
-                return fn(cls, *args)
-            except BaseException as exc:
-                reason = f"{where}: {_one_line(exc)}"
-                mine = [inst for inst in list(_HOSTED) if type(inst) is cls and inst._hosted]
-                _Py_IncRef(cls)
-                for inst in mine:
-                    inst._give_back_references(with_class=False)
-                if len(mine) == 1:
-                    mine[0].log(reason, Fmi2Status.error)
-                raise FmuError(reason) from None
-
-        return classmethod(call)
-
-    return wrap
+def _sole_caller(cls: type[BlockSlave]) -> BlockSlave | None:
+    """The instance calling a class-level method, when that is certain: the wrapper calls the state
+    (de)serialisation on the model class, not on an instance, and the caller is one of the hosted
+    live instances of the class; with exactly one, it is that one."""
+    gc.collect()  # instances the host freed already must not count
+    mine = [inst for inst in list(_HOSTED) if type(inst) is cls and inst._hosted]
+    return mine[0] if len(mine) == 1 else None
 
 
 def _dedupe_sys_path(entry: str) -> None:
@@ -280,12 +269,11 @@ class BlockSlave(Fmi2Slave):
             pass
         return self.log_queue
 
-    def _give_back_references(self, with_class: bool = True) -> None:
+    def _give_back_references(self) -> None:
         """One reference each to what handle_py_exception releases: class, instance, log queue."""
         if not self._hosted:
             return  # called from Python (tests, the builder), not through the wrapper
-        if with_class:
-            _Py_IncRef(type(self))
+        _Py_IncRef(type(self))
         _Py_IncRef(self)
         _Py_IncRef(self._queue)
 
@@ -495,7 +483,7 @@ class BlockSlave(Fmi2Slave):
     # -- FMU state: plain data, restored into the live block (components.state, fmus._state) -----
     @fmi_call
     def _get_fmu_state(self) -> _FmuState:
-        return _FmuState({
+        return _FmuState(self.GUID, {
             "kind": self.BLOCK.kind,
             "real": self._real.copy(),
             "params": dict(self._params),
@@ -507,6 +495,10 @@ class BlockSlave(Fmi2Slave):
     def _set_fmu_state(self, state: Any) -> None:
         if not isinstance(state, _FmuState):
             raise StateError(f"fmi2SetFMUstate: not a state of this FMU ({type(state).__name__})")
+        if state.rejected or state.tree is None:
+            raise StateError(state.rejected or "fmi2SetFMUstate: empty state")
+        if state.guid != self.GUID:
+            raise StateError(f"fmi2SetFMUstate: state of another FMU (GUID {state.guid})")
         tree = state.tree
         real, params = tree.get("real"), tree.get("params")
         if tree.get("kind") != self.BLOCK.kind:
@@ -539,19 +531,47 @@ class BlockSlave(Fmi2Slave):
         self._params = dict(params)
         self._initialising = initialising
 
-    @fmi_class_call("fmi2SerializeFMUstate")
+    @classmethod
     def _fmu_state_to_bytes(cls, state: Any) -> bytes:
-        if not isinstance(state, _FmuState):
-            raise StateError(f"not a state of this FMU ({type(state).__name__})")
-        if state.data is None:  # the wrapper asks twice (size, then bytes): encode once
-            tree = dict(state.tree)
-            tree["real"] = _state_node(tree["real"])
-            tree["params"] = {"$t": "params", "items": [[k, v] for k, v in tree["params"].items()]}
-            state.data = _state.encode(tree, cls.GUID)
-        return state.data
+        """Never raises where the caller is ambiguous (see _class_refusal)."""
+        try:
+            if not isinstance(state, _FmuState):
+                raise StateError(f"not a state of this FMU ({type(state).__name__})")
+            if state.data is None:  # the wrapper asks twice (size, then bytes): encode once
+                tree = dict(state.tree)
+                tree["real"] = _state_node(tree["real"])
+                tree["params"] = {"$t": "params", "items": [[k, v] for k, v in tree["params"].items()]}
+                state.data = _state.encode(tree, cls.GUID)
+            return state.data
+        except Exception as exc:
+            cls._class_refusal("fmi2SerializeFMUstate", exc)
+            return b""
 
-    @fmi_class_call("fmi2DeSerializeFMUstate: state rejected")
+    @classmethod
     def _fmu_state_from_bytes(cls, data: bytes) -> _FmuState:
+        """Bytes that are no state of this FMU are refused here when the calling instance is known
+        (one instance of this FMU in the process), else by the fmi2SetFMUstate that follows."""
+        try:
+            return _FmuState(cls.GUID, cls._decode_state(data), bytes(data))
+        except Exception as exc:
+            reason = cls._class_refusal("fmi2DeSerializeFMUstate: state rejected", exc)
+            return _FmuState(cls.GUID, None, bytes(data), rejected=reason)
+
+    @classmethod
+    def _class_refusal(cls, where: str, exc: BaseException) -> str:
+        """Raise FmuError (-> fmi2Fatal) if the caller is certain, with its references given back
+        and the reason logged by it; otherwise return the reason (raising would over-release an
+        instance we cannot name: pythonfmu's cleanPyObject releases the caller's objects)."""
+        reason = f"{where}: {_one_line(exc)}"
+        caller = _sole_caller(cls)
+        if caller is not None:
+            caller.log(reason, Fmi2Status.error)
+            caller._give_back_references()
+            raise FmuError(reason) from None
+        return reason
+
+    @classmethod
+    def _decode_state(cls, data: bytes) -> dict[str, Any]:
         tree = _state.decode(data, cls.GUID)
         if type(tree) is not dict or set(tree) != {"kind", "real", "params", "initialising", "block"}:
             raise StateError("state: unexpected content")
@@ -568,7 +588,7 @@ class BlockSlave(Fmi2Slave):
                 raise StateError("state: bad parameters")
             out[item[0]] = item[1]
         tree["params"] = out
-        return _FmuState(tree, bytes(data))
+        return tree
 
 
 def _state_node(a: np.ndarray) -> dict[str, Any]:
@@ -576,10 +596,14 @@ def _state_node(a: np.ndarray) -> dict[str, Any]:
 
 
 class _FmuState:
-    """What fmi2GetFMUstate hands the host: plain data only, and its bytes once serialised."""
+    """What fmi2GetFMUstate hands the host: plain data only, and its bytes once serialised; or
+    bytes refused by fmi2DeSerializeFMUstate, with the reason, for fmi2SetFMUstate to report."""
 
-    __slots__ = ("data", "tree")
+    __slots__ = ("data", "guid", "rejected", "tree")
 
-    def __init__(self, tree: dict[str, Any], data: bytes | None = None) -> None:
+    def __init__(self, guid: str, tree: dict[str, Any] | None, data: bytes | None = None,
+                 rejected: str = "") -> None:
+        self.guid = guid
         self.tree = tree
         self.data = data
+        self.rejected = rejected

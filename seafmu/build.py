@@ -104,11 +104,20 @@ def build_fmu(vessel: str, kind: str, force: bool = False) -> BuildResult:
             dst = Path(tmp) / "pkgs" / pkg
             shutil.copytree(REPO / pkg, dst, ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
             project.append(dst)
-        built = pythonfmu.FmuBuilder.build_FMU(
-            script, dest=out, project_files=project, canGetAndSetFMUstate=True, canSerializeFMUstate=True
-        )
-    complete_model_description(Path(built), _signals_by_name(vessel, kind))
-    stamp.write_text(digest)
+        # Built and completed under a name of this process, then renamed: builds running at the
+        # same time (two test sessions, `seafmu run` twice) never see or complete a half-made FMU.
+        part = out.with_name(f".{out.stem}.{os.getpid()}.part.fmu")
+        try:
+            built = pythonfmu.FmuBuilder.build_FMU(
+                script, dest=part, project_files=project, canGetAndSetFMUstate=True, canSerializeFMUstate=True
+            )
+            complete_model_description(Path(built), _signals_by_name(vessel, kind))
+            os.replace(built, out)
+        finally:
+            part.unlink(missing_ok=True)
+    part_stamp = stamp.with_name(f".{stamp.name}.{os.getpid()}.part")
+    part_stamp.write_text(digest)
+    os.replace(part_stamp, stamp)
     return BuildResult(out, rebuilt=True)
 
 
@@ -136,6 +145,8 @@ def complete_model_description(fmu: Path, signals: dict, tool: str = "seafmu bui
     root = ET.fromstring(members["modelDescription.xml"])
 
     units = sorted({s.unit for s in signals.values() if s.unit})
+    for old in root.findall("UnitDefinitions"):  # idempotent: completing twice changes nothing
+        root.remove(old)
     if units:
         ud = ET.Element("UnitDefinitions")
         for u in units:

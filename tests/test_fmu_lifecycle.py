@@ -301,18 +301,23 @@ class _Log:
     def __init__(self) -> None:
         self.lines: list[tuple[int, str]] = []
 
-    def __call__(self, env: object, instance: bytes, status: int, category: bytes, message: bytes) -> None:
-        self.lines.append((status, (message or b"").decode()))
-
     def errors(self) -> list[str]:
         return [m for s, m in self.lines if s == 3]
 
 
-_CALLBACKS: dict[int, object] = {}
+_LOGS: dict[str, _Log] = {}
+_CB: list[object] = []
 
 
-def _open(path: Path, params: dict[str, float] | None = None,
-          init: bool = True) -> tuple[FMU2Slave, dict, _Log]:
+def _route(env: object, instance: bytes, status: int, category: bytes, message: bytes) -> None:
+    log = _LOGS.get((instance or b"").decode())
+    if log is not None:
+        log.lines.append((status, (message or b"").decode()))
+
+
+def _callbacks() -> object:
+    """One set of callbacks for the process: fmpy's logger proxy keeps a single Python callback
+    (a callback per instance would leave it pointing at freed ones); routed by instance name."""
     import ctypes
 
     from fmpy.fmi2 import (
@@ -323,19 +328,26 @@ def _open(path: Path, params: dict[str, float] | None = None,
     )
     from fmpy.logging import addLoggerProxy
 
-    log = _Log()
-    cb = fmi2CallbackFunctions()
-    cb.logger = fmi2CallbackLoggerTYPE(log)
-    libc = ctypes.CDLL(None)
-    cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(libc.calloc)
-    cb.freeMemory = fmi2CallbackFreeMemoryTYPE(libc.free)
-    addLoggerProxy(ctypes.byref(cb))
+    if not _CB:
+        cb = fmi2CallbackFunctions()
+        cb.logger = fmi2CallbackLoggerTYPE(_route)
+        libc = ctypes.CDLL(None)
+        cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(libc.calloc)
+        cb.freeMemory = fmi2CallbackFreeMemoryTYPE(libc.free)
+        addLoggerProxy(ctypes.byref(cb))
+        _CB.append(cb)
+    return _CB[0]
+
+
+def _open(path: Path, params: dict[str, float] | None = None,
+          init: bool = True) -> tuple[FMU2Slave, dict, _Log]:
+    name = f"x{len(_LOGS)}"
+    log = _LOGS[name] = _Log()
     md = read_model_description(str(path))
     vr = {v.name: v.valueReference for v in md.modelVariables}
     fmu = FMU2Slave(guid=md.guid, unzipDirectory=extract(str(path)),
-                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName="x")
-    fmu.instantiate(callbacks=cb, loggingOn=True)
-    _CALLBACKS[id(fmu)] = cb  # the callbacks must outlive the instance
+                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName=name)
+    fmu.instantiate(callbacks=_callbacks(), loggingOn=True)
     fmu.setupExperiment(startTime=0.0)
     fmu.enterInitializationMode()
     for k, v in (params or {}).items():
