@@ -118,6 +118,12 @@ def _sole_caller(cls: type[BlockSlave]) -> BlockSlave | None:
     return mine[0] if len(mine) == 1 else None
 
 
+def _all_finite(a: np.ndarray) -> bool:
+    """np.isfinite(a).all(), in a third of the time for the short arrays of a step: a sum of
+    finite numbers is finite unless it overflows, and NaN or inf anywhere makes it non-finite."""
+    return math.isfinite(sum(a.tolist())) or bool(np.isfinite(a).all())
+
+
 def _dedupe_sys_path(entry: str) -> None:
     """The wrapper inserts the resources folder at sys.path[0] on every instantiation; keep one."""
     seen = False
@@ -470,10 +476,12 @@ class BlockSlave(Fmi2Slave):
         if not math.isfinite(t):
             return "current time is not finite"
         u = self._u
-        if not np.isfinite(u).all():
+        if not _all_finite(u):
             return f"input(s) not finite: {self._nonfinite(self._in_names, u)}"
         y = block.step(t, h, u)
-        if not np.isfinite(y).all():
+        if type(y) is not np.ndarray:
+            y = np.asarray(y, dtype=float)
+        if not _all_finite(y):
             return (f"output(s) not finite: {self._nonfinite(self._out_names, np.asarray(y, dtype=float))}"
                     f"{self._suspects()}; the outputs keep their last values, the model state is that of "
                     "the failed step")
