@@ -1,7 +1,10 @@
 """The ``seafmu`` command: build, check and run scenarios.
 
-Every expected failure (bad scenario, FMU error, missing file) ends with one line on stderr and
-exit code 2; a run whose acceptance checks fail exits with 1.
+Exit codes: 0 the run ended and its checks pass; 1 a check fails; 2 bad input or a failure (bad
+scenario, FMU error, missing file, output folder in use by another run), one line on stderr;
+128 + the signal number when SIGINT, SIGTERM or SIGHUP stopped ``seafmu run`` (130, 143, 129):
+the run stops between two master steps, writes its results up to there and reports
+"interrupted at t = ... s" on one line.
 """
 
 from __future__ import annotations
@@ -9,8 +12,18 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from seafmu.scenario import DEFAULT_SCENARIO
+
+if TYPE_CHECKING:
+    from seafmu.master import StopRequest
+
+
+def one_line(text: str) -> str:
+    """A message as one printable line: line breaks, control characters (a scenario's own text may
+    hold any) shown escaped, so neither the line count nor the terminal changes."""
+    return "".join(c if c.isprintable() else c.encode("unicode_escape").decode("ascii") for c in text)
 
 
 def _cmd_build(args: argparse.Namespace) -> int:
@@ -33,44 +46,81 @@ def _cmd_check(args: argparse.Namespace) -> int:
     sc = load_scenario(args.scenario)
     print(f"{sc.source}: OK — vessel {sc.vessel}, {len(sc.instances)} FMUs, "
           f"{len(sc.connections)} connections, {len(sc.events)} events, {len(sc.checks)} checks, "
-          f"{round(sc.duration / sc.step)} steps")
+          f"{sc.n_steps} steps, {sc.n_samples} samples x {len(sc.outputs)} signals "
+          f"({sc.result_bytes / 1e6:.3g} MB of results in memory)")
     return 0
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from seafmu.master import run
-    from seafmu.report import write_report
-    from seafmu.results import evaluate_checks, summary, write_csv, write_summary
+    from seafmu.master import StopRequest, stop_on_signals
+
+    stop = StopRequest()
+    with stop_on_signals(stop):  # from here on, SIGINT/SIGTERM/SIGHUP only ask the run to stop
+        return _run(args, stop)
+
+
+def _run(args: argparse.Namespace, stop: StopRequest) -> int:
+    from seafmu.master import SimulationError, run
+    from seafmu.outdir import RunFolder
+    from seafmu.report import write_failure_report, write_placeholder_report, write_report
+    from seafmu.results import CsvStream, evaluate_checks, summary, write_summary
     from seafmu.scenario import load_scenario
 
     sc = load_scenario(args.scenario)
+    if stop.requested:
+        print(f"seafmu: interrupted ({stop.name}) before the run started; nothing written", file=sys.stderr)
+        return stop.exit_code
     out = Path(args.output) if args.output else Path("results") / sc.name
-    out.mkdir(parents=True, exist_ok=True)
     mode = "inprocess" if args.inprocess else "fmu"
-    if mode == "fmu":
-        from seafmu.build import build_fmu
+    error = ""
+    with RunFolder(out):  # locked for this run, the previous run's outputs removed
+        write_placeholder_report(sc.name, out)
+        try:
+            if mode == "fmu":
+                from seafmu.build import build_fmu
 
-        for inst in sc.instances:
-            if inst.kind is not None:
-                r = build_fmu(sc.vessel, inst.kind)
-                if r.rebuilt:
-                    print(f"built {r.path}")
-    record = out / "recording" if any(i.hardware for i in sc.instances) else None
-    result = run(sc, mode=mode, progress=not args.quiet and not sc.realtime, record_dir=record)
-    checks = evaluate_checks(result)
-    data = summary(result, checks)
-    write_csv(result, out / "results.csv")
-    write_summary(data, out / "summary.json")
-    report = write_report(result, checks, data, out)
-    print(f"{sc.name}: {sc.duration:g} s simulated in {result.wall_time:.2f} s "
+                for inst in sc.instances:
+                    if inst.kind is not None:
+                        r = build_fmu(sc.vessel, inst.kind)
+                        if r.rebuilt:
+                            print(f"built {r.path}")
+            record = out / "recording" if any(i.hardware for i in sc.instances) else None
+            csv = CsvStream(out / "results.csv")
+            try:
+                result = run(sc, mode=mode, progress=not args.quiet and not sc.realtime, record_dir=record,
+                             stop=stop, sink=csv)
+            except SimulationError as exc:
+                if exc.partial is None:
+                    raise
+                result, error = exc.partial, str(exc)
+            finally:
+                csv.close()
+        except Exception as exc:  # nothing recorded: the report says why, then the usual one line
+            write_failure_report(sc.name, out, " ".join(str(exc).split()))
+            raise
+        checks = evaluate_checks(result)
+        data = summary(result, checks)
+        write_summary(data, out / "summary.json")
+        report = write_report(result, checks, data, out)  # last: a report means every file is complete
+    print(f"{sc.name}: {result.t_end:g} s simulated in {result.wall_time:.2f} s "
           f"(real-time factor {result.realtime_factor:.0f}, mode {mode})")
     for name, us in data["us_per_step"].items():
         print(f"  {name:<12} {us:8.1f} µs/step")
     if result.pacing_summary:
         print(f"  pacing: {result.pacing_summary}")
     for c in checks:
-        print(f"  [{'PASS' if c.passed else 'FAIL'}] {c.name}: {c.value:.4g} ({c.bound})")
+        shown = f"{c.note}" if c.note else f"{c.value:.4g}"
+        print(f"  [{'PASS' if c.passed else 'FAIL'}] {c.name}: {shown} ({c.bound})")
     print(f"report: {report}")
+    if error:
+        print(f"seafmu: error: {one_line(error)} (results up to t = {result.t_end:g} s in {out})",
+              file=sys.stderr)
+        return 2
+    if stop.requested:
+        where = (f"interrupted at t = {result.t_end:g} s of {sc.duration:g} s" if result.interrupted
+                 else f"interrupted at t = {result.t_end:g} s, the end of the run")
+        print(f"seafmu: {where} ({stop.name}); results up to there in {out}", file=sys.stderr)
+        return stop.exit_code
     return 0 if data["checks_passed"] else 1
 
 
@@ -101,12 +151,13 @@ def main(argv: list[str] | None = None) -> int:
     from components.vessel_spec import VesselFileError
     from seafmu.identification.trial import TrialError
     from seafmu.master import SimulationError
+    from seafmu.outdir import OutputFolderError
     from seafmu.scenario import ScenarioError
 
     try:
         return args.fn(args)
-    except (ScenarioError, SimulationError, VesselFileError, TrialError, OSError) as exc:
-        print(f"seafmu: error: {exc}", file=sys.stderr)
+    except (ScenarioError, SimulationError, VesselFileError, TrialError, OutputFolderError, OSError) as exc:
+        print(f"seafmu: error: {one_line(str(exc))}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("seafmu: interrupted", file=sys.stderr)

@@ -7,29 +7,109 @@ observer in the same step, the allocator's command reaches the plant one step la
 
 The same loop drives Blocks directly (``mode="inprocess"``) — no fmpy, no FMI C layer — which
 is how tests prove the FMUs add nothing but overhead, and how the benchmark measures it.
+
+Runs that lose nothing: the recorded rows go to a ``sink`` (``seafmu.results.CsvStream``) in
+chunks while the run goes; a stop request (``StopRequest``, set by ``stop_on_signals`` for SIGINT,
+SIGTERM and SIGHUP) is checked between master steps — never raised inside an FMU, whose Python code
+shares this interpreter — and ends the loop with the results up to there; an FMU that fails
+mid-run raises ``SimulationError`` with the results up to the failure in ``.partial``. Every unit
+is stopped on every way out (a hardware link through its clean stop: thrusters zeroed and
+disabled, recording finished).
 """
 
 from __future__ import annotations
 
 import atexit
+import contextlib
 import ctypes
+import fcntl
 import math
+import os
 import shutil
+import signal
 import tempfile
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, Protocol
 
 import numpy as np
 
-from seafmu.scenario import Instance, Scenario
+from seafmu.scenario import MAX_RESULT_BYTES, MAX_STEPS, Instance, Scenario
 
 Mode = Literal["fmu", "inprocess"]
 
 
 class SimulationError(RuntimeError):
-    """A run that failed; the message is one line naming the FMU and what it reported."""
+    """A run that failed; the message is one line naming the FMU and what it reported.
+
+    ``partial`` holds the results up to the failure when the loop had started (else None).
+    """
+
+    partial: RunResult | None = None
+
+
+STOP_SIGNALS = tuple(s for s in (signal.SIGINT, signal.SIGTERM, getattr(signal, "SIGHUP", None)) if s)
+
+
+class StopRequest:
+    """Set by a signal handler, read by the master between steps (an attribute read per step)."""
+
+    def __init__(self) -> None:
+        self.signum: int | None = None
+
+    def request(self, signum: int) -> None:
+        if self.signum is None:
+            self.signum = signum
+
+    @property
+    def requested(self) -> bool:
+        return self.signum is not None
+
+    @property
+    def name(self) -> str:
+        return signal.Signals(self.signum).name if self.signum is not None else ""
+
+    @property
+    def exit_code(self) -> int:
+        """128 + the signal number, as a shell reports a process the signal ended: 130, 143, 129."""
+        return 128 + (self.signum or signal.SIGINT)
+
+
+@contextlib.contextmanager
+def stop_on_signals(stop: StopRequest) -> Iterator[StopRequest]:
+    """SIGINT, SIGTERM and SIGHUP only set ``stop`` while inside; the old handlers come back after.
+
+    The handler raises nothing: a KeyboardInterrupt would surface inside whatever Python code runs
+    at that moment — often an FMU's, which then reports a failed FMI call instead of a stop.
+    A signal inherited as ignored (``nohup``; SIGINT in a shell's background job) stays ignored.
+    Outside the main thread (where handlers cannot be set) this does nothing.
+    """
+    old: dict[int, Any] = {}
+    try:
+        for sig in STOP_SIGNALS:
+            if signal.getsignal(sig) is signal.SIG_IGN:  # nohup, or a background job's SIGINT: stays ignored
+                continue
+            old[sig] = signal.signal(sig, lambda signum, frame: stop.request(signum))
+    except ValueError:  # not the main thread
+        pass
+    try:
+        yield stop
+    finally:
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
+
+
+class Sink(Protocol):
+    """Where the master streams its recorded rows (time first) while it runs."""
+
+    def begin(self, columns: list[str]) -> None: ...
+    def write(self, rows: np.ndarray) -> None: ...
+
+
+SINK_ROWS = 1000  # rows per chunk written to the sink ...
+SINK_SECONDS = 1.0  # ... or sooner, once this much wall time has passed since the last chunk
 
 
 @dataclass
@@ -44,10 +124,22 @@ class RunResult:
     log: list[str] = field(default_factory=list)
     pacing: dict[str, Any] | None = None  # real-time runs: factor over windows, jitter percentiles
     pacing_summary: str = ""
+    t_end: float | None = None  # simulated time reached (the duration unless stopped early)
+    interrupted: str = ""  # the signal that stopped the run early ("SIGTERM"), else ""
+    error: str = ""  # the failure that ended the run early, else ""
+
+    def __post_init__(self) -> None:
+        if self.t_end is None:
+            self.t_end = self.scenario.duration
+
+    @property
+    def complete(self) -> bool:
+        return not self.interrupted and not self.error
 
     @property
     def realtime_factor(self) -> float:
-        return self.scenario.duration / self.wall_time if self.wall_time > 0 else math.inf
+        t = self.scenario.duration if self.t_end is None else self.t_end
+        return t / self.wall_time if self.wall_time > 0 else math.inf
 
     def us_per_step(self) -> dict[str, float]:
         return {k: 1e6 * v / max(self.steps[k], 1) for k, v in self.step_time.items()}
@@ -174,22 +266,79 @@ def _callbacks() -> Any:
     return _CALLBACKS
 
 
+# The unpacked FMUs of this process live under one folder, seafmu_fmu_<random>/ in the temp
+# directory, holding ``.owner.lock`` flock-ed by this process for its lifetime. The folder goes at
+# exit (atexit: normal ends, errors, and the stop signals, which end the run normally); what a
+# SIGKILL or a crash leaves behind is swept by the next process that unpacks an FMU: a folder
+# whose lock it can take has no living owner (this works across PID namespaces, unlike PIDs).
+EXTRACT_PREFIX = "seafmu_fmu_"
+_OWNER_LOCK = ".owner.lock"
+_extract_root: Path | None = None
+_extract_lock_fd: int | None = None
+
+
+def sweep_orphaned_extractions(tmp: str | None = None) -> list[Path]:
+    """Remove the FMU folders of processes that died without cleaning up; returns what went."""
+    removed = []
+    for d in Path(tmp or tempfile.gettempdir()).glob(f"{EXTRACT_PREFIX}*"):
+        lock = d / _OWNER_LOCK
+        try:
+            fd = os.open(lock, os.O_RDWR)
+        except OSError:  # no lock file: another layout, or an owner still creating it
+            continue
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:  # held: the owner lives
+            os.close(fd)
+            continue
+        try:
+            if os.fstat(fd).st_size > 0:  # written after the owner took the lock: a dead owner's
+                shutil.rmtree(d, ignore_errors=True)
+                removed.append(d)
+        finally:
+            os.close(fd)
+    return removed
+
+
+def _extract_dir() -> Path:
+    global _extract_root, _extract_lock_fd
+    if _extract_root is None:
+        sweep_orphaned_extractions()
+        root = Path(tempfile.mkdtemp(prefix=EXTRACT_PREFIX))
+        fd = os.open(root / _OWNER_LOCK, os.O_RDWR | os.O_CREAT, 0o600)
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        os.write(fd, f"{os.getpid()}\n".encode())
+        _extract_root, _extract_lock_fd = root, fd
+    return _extract_root
+
+
 def _extract(fmu: Path) -> str:
     """Unzip each FMU once per process (instances of the same FMU share the folder)."""
     from fmpy import extract
 
     key = (str(fmu), fmu.stat().st_mtime)
     if key not in _EXTRACTED:
-        _EXTRACTED[key] = extract(str(fmu), unzipdir=tempfile.mkdtemp(prefix="seafmu_fmu_"))
+        _EXTRACTED[key] = extract(str(fmu), unzipdir=tempfile.mkdtemp(dir=_extract_dir()))
     return _EXTRACTED[key]
 
 
 @atexit.register
 def cleanup_extracted() -> None:
-    """Remove the unpacked FMUs when the process ends (the libraries stay loaded until then)."""
+    """Remove the unpacked FMUs when the process ends (the libraries stay loaded until then).
+
+    Not earlier: unloading pythonfmu's library and loading it again in the same process makes the
+    next instantiate fail, so a process keeps its unpacked FMUs for later runs.
+    """
+    global _extract_root, _extract_lock_fd
     for d in _EXTRACTED.values():
         shutil.rmtree(d, ignore_errors=True)
     _EXTRACTED.clear()
+    if _extract_root is not None:
+        shutil.rmtree(_extract_root, ignore_errors=True)
+        _extract_root = None
+    if _extract_lock_fd is not None:
+        os.close(_extract_lock_fd)
+        _extract_lock_fd = None
 
 
 class FmuUnit(_Unit):
@@ -297,12 +446,20 @@ class FmuUnit(_Unit):
 # -- the master loop ---------------------------------------------------------------------------
 
 def run(scenario: Scenario, mode: Mode = "fmu", progress: bool = True,
-        fmu_files: dict[str, Path] | None = None, record_dir: Path | None = None) -> RunResult:
+        fmu_files: dict[str, Path] | None = None, record_dir: Path | None = None,
+        stop: StopRequest | None = None, sink: Sink | None = None) -> RunResult:
     """Run a resolved scenario; ``fmu_files`` maps instance -> FMU (built ones by default).
 
     An instance with a hardware profile is a ``HardwareLink`` (a real or emulated vessel); the link
-    paces the loop to the wall clock and records its traffic under ``record_dir``.
+    paces the loop to the wall clock and records its traffic under ``record_dir``. ``stop``, once
+    requested, ends the loop before the next master step (``RunResult.interrupted``); ``sink``
+    receives the recorded rows in chunks while the run goes.
     """
+    # load_scenario bounds these; a Scenario changed in code (dataclasses.replace) is checked here
+    if scenario.n_steps > MAX_STEPS or scenario.result_bytes > MAX_RESULT_BYTES:
+        raise SimulationError(f"{scenario.name}: {scenario.n_steps} steps, {scenario.n_samples} samples of "
+                              f"{len(scenario.outputs)} signals: above the limits ({MAX_STEPS} steps, "
+                              f"{MAX_RESULT_BYTES} bytes of results)")
     log: list[str] = []
     inputs_of: dict[str, list[tuple[str, str, str]]] = {}
     for si, sv, di, dv in scenario.connections:
@@ -335,9 +492,13 @@ def run(scenario: Scenario, mode: Mode = "fmu", progress: bool = True,
 
             hw_errors = (HardwareError,)
         try:
-            result = _loop(scenario, units, mode, progress, log)
+            result = _loop(scenario, units, mode, progress, log, stop, sink)
         except hw_errors as exc:  # a port that cannot open, a vessel that never answers
-            raise SimulationError(" ".join(str(exc).split())) from None
+            err = SimulationError(" ".join(str(exc).split()))
+            err.partial = getattr(exc, "partial", None)
+            if err.partial is not None:
+                err.partial.error = str(err)
+            raise err from None
         links = [u for u in units if hasattr(u, "pacing_stats")]
         if links:
             stats = links[0].pacing_stats()  # type: ignore[attr-defined]
@@ -347,10 +508,18 @@ def run(scenario: Scenario, mode: Mode = "fmu", progress: bool = True,
         for u in units:
             if isinstance(u, FmuUnit):
                 u.collect_log()
-            u.terminate()
+            _stop_unit(u)
 
 
-def _loop(scenario: Scenario, units: list[_Unit], mode: str, progress: bool, log: list[str]) -> RunResult:
+def _stop_unit(u: _Unit) -> None:
+    """A unit's clean stop: a hardware link's ``close()`` (thrusters zeroed and disabled, recording
+    finished) where it has one, else ``terminate()``."""
+    close = getattr(u, "close", None)
+    (close if callable(close) else u.terminate)()
+
+
+def _loop(scenario: Scenario, units: list[_Unit], mode: str, progress: bool, log: list[str],
+          stop: StopRequest | None = None, sink: Sink | None = None) -> RunResult:
     # One flat "bus" of every output; inputs read slices of it through index arrays.
     slot: dict[tuple[str, str], int] = {}
     out_slices = []
@@ -398,11 +567,27 @@ def _loop(scenario: Scenario, units: list[_Unit], mode: str, progress: bool, log
     extra_rec = np.full((n_rec, len(extra)), np.nan)
     times = np.empty(n_rec)
 
+    names = [f"{i}.{v}" for i, v in rec_keys] + [f"{i}.{v}" for i, v in extra]
+    n_done = 0  # rows recorded
+    n_sent = 0  # rows handed to the sink
+    last_sent = time.perf_counter()
+
+    def send() -> None:
+        nonlocal n_sent, last_sent
+        if sink is not None and n_done > n_sent:
+            sink.write(np.column_stack([times[n_sent:n_done], rec[n_sent:n_done], extra_rec[n_sent:n_done]]))
+        n_sent, last_sent = n_done, time.perf_counter()
+
     def record(row: int, t: float) -> None:
+        nonlocal n_done
         times[row] = t
         rec[row] = bus[rec_slots_arr]
         for j, key in enumerate(extra):
             extra_rec[row, j] = held.get(key, np.nan)
+        n_done = row + 1
+        if sink is not None and (n_done - n_sent >= SINK_ROWS
+                                 or time.perf_counter() - last_sent >= SINK_SECONDS):
+            send()
 
     events = list(scenario.events)
     ev_i = 0
@@ -418,6 +603,8 @@ def _loop(scenario: Scenario, units: list[_Unit], mode: str, progress: bool, log
             held[(inst, var)] = float(value) if isinstance(value, int | float) else np.nan
             ev_i += 1
 
+    if sink is not None:
+        sink.begin(["time", *names])
     apply_events(0.0)
     record(0, 0.0)
     step_time = {u.name: 0.0 for u in units}
@@ -441,48 +628,71 @@ def _loop(scenario: Scenario, units: list[_Unit], mode: str, progress: bool, log
 
         pacer = Pacer(h)
         pacer.start()
+    if stop is None:
+        stop = StopRequest()  # never requested: one attribute read per step either way
+    k_done = 0  # master steps completed
     wall0 = perf()
-    for k in range(n_steps):
-        t = k * h
-        apply_events(t)
-        for j, u in enumerate(units):
-            m = mults[j]
-            if k % m:
-                if (k + 1) % m == 0:
-                    bus[out_slices[j]] = pending.pop(j)
-                continue
-            t0 = perf()
-            try:
-                if len(src_idx[j]):
-                    u.set_inputs(bus[src_idx[j]])
-                u.do_step(t, h * m)
-                if m == 1:
-                    bus[out_slices[j]] = u.get_outputs()
-                else:
-                    pending[j] = u.get_outputs().copy()
-            except SimulationError:
-                raise
-            except Exception as exc:
-                if isinstance(u, FmuUnit):
-                    raise u.error(f"step at t = {t:.3f} s", exc) from None
-                raise
-            step_time[u.name] += perf() - t0
-            steps[u.name] += 1
-        if (k + 1) % rec_every == 0:
-            record((k + 1) // rec_every, (k + 1) * h)
-        if pacer is not None:
-            pacer.wait_until(k + 1)
-        if bar is not None and k % 200 == 0:
-            bar.update(min(200, n_steps - k))
-    wall = perf() - wall0
-    if bar is not None:
-        bar.close()
 
-    signals = {f"{i}.{v}": rec[:, j] for j, (i, v) in enumerate(rec_keys)}
-    for j, (i, v) in enumerate(extra):
-        signals[f"{i}.{v}"] = extra_rec[:, j]
-    result = RunResult(scenario, times, signals, wall, step_time, steps, mode, log)
-    if pacer is not None:
-        stats = pacer.stats()
-        result.pacing, result.pacing_summary = stats.as_dict(), stats.summary()
-    return result
+    def result(wall: float) -> RunResult:
+        signals = {name: col for name, col in zip(names, [*rec[:n_done].T, *extra_rec[:n_done].T],
+                                                  strict=True)}
+        r = RunResult(scenario, times[:n_done], signals, wall, step_time, steps, mode, log,
+                      t_end=k_done * h, interrupted=stop.name if k_done < n_steps else "")
+        if pacer is not None:
+            stats = pacer.stats()
+            r.pacing, r.pacing_summary = stats.as_dict(), stats.summary()
+        return r
+
+    try:
+        for k in range(n_steps):
+            if stop.signum is not None:
+                break
+            t = k * h
+            apply_events(t)
+            for j, u in enumerate(units):
+                m = mults[j]
+                if k % m:
+                    if (k + 1) % m == 0:
+                        bus[out_slices[j]] = pending.pop(j)
+                    continue
+                t0 = perf()
+                try:
+                    if len(src_idx[j]):
+                        u.set_inputs(bus[src_idx[j]])
+                    u.do_step(t, h * m)
+                    if m == 1:
+                        bus[out_slices[j]] = u.get_outputs()
+                    else:
+                        pending[j] = u.get_outputs().copy()
+                except SimulationError:
+                    raise
+                except Exception as exc:
+                    if isinstance(u, FmuUnit):
+                        raise u.error(f"step at t = {t:.3f} s", exc) from None
+                    raise
+                step_time[u.name] += perf() - t0
+                steps[u.name] += 1
+            k_done = k + 1
+            if k_done % rec_every == 0:
+                record(k_done // rec_every, k_done * h)
+            if pacer is not None:
+                pacer.wait_until(k + 1)
+            if bar is not None and k % 200 == 0:
+                bar.update(min(200, n_steps - k))
+        if k_done < n_steps and k_done % rec_every:  # stopped between two samples: keep the last step
+            record(n_done, k_done * h)
+    except BaseException as exc:
+        if isinstance(exc, Exception):  # the results up to the failure travel with the error
+            partial = result(perf() - wall0)
+            partial.interrupted = ""
+            partial.error = " ".join(str(exc).split())
+            with contextlib.suppress(AttributeError):
+                exc.partial = partial  # type: ignore[attr-defined]
+        with contextlib.suppress(Exception):
+            send()
+        raise
+    finally:
+        if bar is not None:
+            bar.close()
+    send()
+    return result(perf() - wall0)

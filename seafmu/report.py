@@ -1,7 +1,15 @@
-"""Plots (PNG) and the Markdown report of a run: trajectory, states vs references, thruster use."""
+"""Plots (PNG) and the Markdown report of a run: trajectory, states vs references, thruster use.
+
+Every file is written atomically (a temporary name, then ``os.replace``), the report last: a
+report.md that is not the placeholder means every file it names is complete. The placeholder,
+written when the run starts, says the run is going — and, if it is still there after the process
+ended, that the run was killed before it could write its report.
+"""
 
 from __future__ import annotations
 
+import datetime
+import os
 from pathlib import Path
 from typing import Any
 
@@ -12,9 +20,19 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from seafmu.master import RunResult
+from seafmu.outdir import atomic_path, atomic_write_text
 from seafmu.results import CheckResult
 
 ANGLES = {"roll", "pitch", "yaw"}
+PLACEHOLDER_MARK = "<!-- seafmu: run in progress -->"
+
+
+def _save(fig: Any, path: Path) -> None:
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=110, format="png")
+    finally:
+        plt.close(fig)
 
 
 def _find(result: RunResult, var: str) -> str | None:
@@ -42,8 +60,7 @@ def plot_trajectory(result: RunResult, path: Path) -> bool:
     ax.legend()
     ax.set_title(f"{result.scenario.name}: trajectory (NED)")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(fig, path)
     return True
 
 
@@ -75,8 +92,7 @@ def plot_states(result: RunResult, path: Path) -> bool:
     axes[-1, 0].set_xlabel("time [s]")
     fig.suptitle(f"{result.scenario.name}: states vs references")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(fig, path)
     return True
 
 
@@ -97,11 +113,11 @@ def plot_thrusters(result: RunResult, path: Path) -> bool:
     axes[1].set_xlabel("time [s]")
     for ax in axes:
         ax.grid(True, alpha=0.3)
-        ax.legend(fontsize=7, ncol=4, loc="best")
+        if ax.get_legend_handles_labels()[0]:  # a hardware link reports no thrust: no empty legend
+            ax.legend(fontsize=7, ncol=4, loc="best")
     fig.suptitle(f"{result.scenario.name}: thruster use")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(fig, path)
     return True
 
 
@@ -138,23 +154,62 @@ def plot_allocation(result: RunResult, path: Path) -> bool:
     ax.legend(fontsize=8)
     ax.set_title(f"{result.scenario.name}: allocation error")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(fig, path)
     return True
+
+
+def write_placeholder_report(name: str, out: Path) -> Path:
+    """report.md while the run goes; replaced by the real report at the end, whatever ends it short
+    of SIGKILL, a power loss or a crash of the interpreter — which this text then explains."""
+    now = datetime.datetime.now().astimezone().isoformat(timespec="seconds")
+    text = "\n".join([
+        PLACEHOLDER_MARK, f"# {name}: run in progress", "",
+        f"Started {now} by process {os.getpid()}. This file is replaced by the report when the run ends, "
+        "also when it is interrupted (SIGINT, SIGTERM, SIGHUP) or fails.", "",
+        "If you read this after that process ended, it was killed (SIGKILL, power loss, a crash) before it "
+        "could write its report: `results.csv` holds the samples up to its last flush (at most about "
+        "1 s or 1000 rows before the end).", ""])
+    path = out / "report.md"
+    atomic_write_text(path, text)
+    return path
+
+
+def write_failure_report(name: str, out: Path, error: str) -> Path:
+    """report.md of a run that failed before its first step (nothing recorded)."""
+    path = out / "report.md"
+    atomic_write_text(path, f"# {name}\n\nThe run failed before its first step: {error}\n")
+    return path
+
+
+def _stop_line(result: RunResult) -> str:
+    sc = result.scenario
+    if result.interrupted:
+        return f"interrupted at t = {result.t_end:g} s of {sc.duration:g} s ({result.interrupted})"
+    if result.error:
+        return f"failed at t = {result.t_end:g} s of {sc.duration:g} s: {result.error}"
+    return ""
 
 
 def write_report(result: RunResult, checks: list[CheckResult], summary: dict[str, Any], out: Path) -> Path:
     sc = result.scenario
-    figures = []
+    figures: list[tuple[str, str]] = []
+    failed: list[str] = []
     for fn, name, title in ((plot_trajectory, "trajectory.png", "Trajectory"),
                             (plot_states, "states.png", "States vs references"),
                             (plot_thrusters, "thrusters.png", "Thruster use"),
                             (plot_allocation, "allocation.png", "Allocation error")):
-        if fn(result, out / name):
-            figures.append((title, name))
+        try:
+            if fn(result, out / name):
+                figures.append((title, name))
+        except Exception as exc:  # a figure that cannot be drawn must not cost the report
+            plt.close("all")
+            failed.append(f"{name}: {type(exc).__name__}: {' '.join(str(exc).split())[:200]}")
+    stopped = _stop_line(result)
     lines = [
         f"# {sc.name}",
         "",
+        *([f"**Run {stopped}.** The results, checks and figures cover t = 0 … {result.t_end:g} s.", ""]
+          if stopped else []),
         sc.description.strip(),
         "",
         "## Run",
@@ -164,7 +219,8 @@ def write_report(result: RunResult, checks: list[CheckResult], summary: dict[str
         f"| vessel | {sc.vessel} |",
         f"| scenario file | `{sc.source}` |",
         f"| mode | {result.mode} |",
-        f"| simulated time | {sc.duration:g} s, step {sc.step:g} s |",
+        f"| simulated time | {result.t_end:g} s of {sc.duration:g} s, step {sc.step:g} s"
+        f"{' (stopped early)' if stopped else ''} |",
         f"| wall time | {result.wall_time:.3f} s |",
         f"| real-time factor | {result.realtime_factor:.1f} |",
     ]
@@ -176,7 +232,9 @@ def write_report(result: RunResult, checks: list[CheckResult], summary: dict[str
     if checks:
         lines += ["| check | value | bound | result |", "|---|---|---|---|"]
         for c in checks:
-            lines.append(f"| {c.name} | {c.value:.4g} | {c.bound} | {'PASS' if c.passed else 'FAIL'} |")
+            verdict = "PASS" if c.passed else "FAIL" + (f" ({c.note})" if c.note else "")
+            value = "—" if c.note else f"{c.value:.4g}"
+            lines.append(f"| {c.name} | {value} | {c.bound} | {verdict} |")
     else:
         lines.append("No checks in this scenario.")
     table = allocation_table(result)
@@ -187,8 +245,10 @@ def write_report(result: RunResult, checks: list[CheckResult], summary: dict[str
     lines += ["", "## Figures", ""]
     for title, name in figures:
         lines += [f"### {title}", "", f"![{title}]({name})", ""]
+    if failed:
+        lines += ["Figures that could not be drawn:", "", *[f"- {f}" for f in failed], ""]
     lines += ["## Files", "", "- `results.csv`: every recorded signal, one column per `instance.variable`",
               "- `summary.json`: timing, checks and messages, for scripts", ""]
     path = out / "report.md"
-    path.write_text("\n".join(lines))
+    atomic_write_text(path, "\n".join(lines))
     return path

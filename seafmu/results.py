@@ -1,16 +1,26 @@
-"""Results of a run: the CSV of recorded signals, the acceptance checks, and the JSON summary."""
+"""Results of a run: the CSV of recorded signals, the acceptance checks, and the JSON summary.
+
+``CsvStream`` writes results.csv while the run goes (header first, then chunks of rows, each
+flushed); ``write_csv`` writes the same format at once. The summary is written atomically.
+"""
 
 from __future__ import annotations
 
+import io
 import json
 import math
+import os
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import numpy as np
 
 from seafmu.master import RunResult
+from seafmu.outdir import atomic_write_text
+from seafmu.scenario import time_slack
+
+CSV_FORMAT = "%.10g"
 
 
 @dataclass
@@ -20,6 +30,7 @@ class CheckResult:
     value: float
     bound: str
     passed: bool
+    note: str = ""  # why a check could not be evaluated (no samples, run stopped early, not finite)
 
 
 def _wrap(x: np.ndarray) -> np.ndarray:
@@ -37,8 +48,10 @@ _METRICS = {
 
 
 def evaluate_checks(result: RunResult) -> list[CheckResult]:
+    """Each check over its window; one that cannot be evaluated FAILs with a note saying why."""
     out = []
     t = result.time
+    t_end = result.scenario.duration if result.t_end is None else result.t_end
     for c in result.scenario.checks:
         y = np.array(result.signals[c.signal], dtype=float)
         label = c.signal
@@ -47,14 +60,20 @@ def evaluate_checks(result: RunResult) -> list[CheckResult]:
             label = f"{c.signal} - {c.minus}"
         if c.angle:
             y = _wrap(y)
-        mask = t >= c.after - 1e-9
+        mask = t >= c.after - time_slack(c.after)
         if c.before is not None:
-            mask &= t <= c.before + 1e-9
+            mask &= t <= c.before + time_slack(c.before)
         w = y[mask]
-        if w.size == 0 or not np.all(np.isfinite(w)):
-            value = math.nan
-        else:
-            value = _METRICS[c.metric](w)
+        window_end = result.scenario.duration if c.before is None else min(c.before, result.scenario.duration)
+        note = ""
+        if not result.complete and window_end > t_end + time_slack(t_end):
+            note = (f"not evaluated: the run stopped at t = {t_end:g} s, before the end of this window "
+                    f"({window_end:g} s)")
+        elif w.size == 0:
+            note = "not evaluated: no samples in the window"
+        elif not np.all(np.isfinite(w)):
+            note = f"not evaluated: the signal is not finite at t = {t[mask][~np.isfinite(w)][0]:g} s"
+        value = math.nan if note else _METRICS[c.metric](w)
         ok = math.isfinite(value)
         bounds = []
         if c.max is not None:
@@ -65,14 +84,48 @@ def evaluate_checks(result: RunResult) -> list[CheckResult]:
             bounds.append(f">= {c.min:g}")
         window = f"t >= {c.after:g} s" + (f", t <= {c.before:g} s" if c.before is not None else "")
         name = c.name or f"{c.metric}({label}) over {window}"
-        out.append(CheckResult(name, c.metric, value, " and ".join(bounds), ok))
+        out.append(CheckResult(name, c.metric, value, " and ".join(bounds), ok, note))
     return out
 
 
 def write_csv(result: RunResult, path: Path) -> None:
     names = list(result.signals)
     data = np.column_stack([result.time, *[result.signals[n] for n in names]])
-    np.savetxt(path, data, delimiter=",", header=",".join(["time", *names]), comments="", fmt="%.10g")
+    np.savetxt(path, data, delimiter=",", header=",".join(["time", *names]), comments="", fmt=CSV_FORMAT)
+
+
+class CsvStream:
+    """results.csv written while the run goes: the master's ``sink``. Each chunk is flushed to the
+    OS at once, so whatever ends the process keeps every row written before; ``close`` also
+    syncs the file to disk. Same format as ``write_csv``."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = Path(path)
+        self._fh: IO[str] | None = None
+        self.rows = 0
+
+    def begin(self, columns: list[str]) -> None:
+        self._fh = open(self.path, "w", encoding="utf-8", newline="")
+        self._fh.write(",".join(columns) + "\n")
+        self._fh.flush()
+
+    def write(self, rows: np.ndarray) -> None:
+        if self._fh is None:
+            raise RuntimeError("CsvStream.write before begin")
+        buf = io.StringIO()  # one write per chunk: a killed writer leaves whole chunks, not half rows
+        np.savetxt(buf, rows, delimiter=",", fmt=CSV_FORMAT)
+        self._fh.write(buf.getvalue())
+        self._fh.flush()
+        self.rows += len(rows)
+
+    def close(self) -> None:
+        if self._fh is not None:
+            try:
+                self._fh.flush()
+                os.fsync(self._fh.fileno())
+            finally:
+                self._fh.close()
+                self._fh = None
 
 
 def summary(result: RunResult, checks: list[CheckResult]) -> dict[str, Any]:
@@ -84,6 +137,11 @@ def summary(result: RunResult, checks: list[CheckResult]) -> dict[str, Any]:
         "mode": result.mode,
         "duration_s": sc.duration,
         "step_s": sc.step,
+        "simulated_s": result.t_end,
+        "samples": len(result.time),
+        "complete": result.complete,
+        "interrupted": result.interrupted or None,
+        "error": result.error or None,
         "wall_time_s": round(result.wall_time, 4),
         "realtime_factor": round(result.realtime_factor, 1),
         "us_per_step": {k: round(v, 1) for k, v in result.us_per_step().items()},
@@ -107,4 +165,4 @@ def _json_safe(x: Any) -> Any:
 
 
 def write_summary(data: dict[str, Any], path: Path) -> None:
-    path.write_text(json.dumps(_json_safe(data), indent=2, allow_nan=False) + "\n")
+    atomic_write_text(path, json.dumps(_json_safe(data), indent=2, allow_nan=False) + "\n")

@@ -3,12 +3,21 @@
 A scenario names a vessel, the FMUs and their order (the Gauss-Seidel order of the master), the
 connections (by matching names, or explicit), parameters, timed events, recorded outputs and
 acceptance checks. Every mistake is reported as one line: ``file: field: what is wrong``.
+
+Every number that sizes the run is bounded here, before anything is allocated, and ``seafmu
+check`` runs exactly these checks: the file size (``seafmu.yamlfile``), the step (``MIN_STEP`` <=
+step <= duration), the duration (``MAX_DURATION``), the number of master steps (``MAX_STEPS``), the
+recorded results held in memory (``MAX_RESULT_BYTES``, estimated as samples x columns x 8 bytes),
+step multiples and record intervals (within the run), the number of FMUs (``MAX_FMUS``), an FMU
+file's unpacked size (``MAX_FMU_UNPACKED_BYTES``), event times (on the grid, inside the run) and
+check windows (each must contain at least one recorded sample).
 """
 
 from __future__ import annotations
 
 import math
 import re
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -23,6 +32,14 @@ SCENARIO_DIR = REPO / "scenarios"
 DEFAULT_SCENARIO = "minerva2_dp"
 KINDS = ("plant", "observer", "controller", "allocator")
 Value = float | int | str | bool
+
+MIN_STEP = 1e-6  # s: the smallest master step
+MAX_DURATION = 1e7  # s: about 116 days
+MAX_STEPS = 10_000_000  # master steps in one run (about an hour of wall time at 400 us per step)
+MAX_RESULT_BYTES = 1_000_000_000  # recorded samples x (signals + time) x 8 bytes, held in memory
+MAX_FMUS = 64  # FMUs (and hardware links) in one scenario
+MAX_FMU_UNPACKED_BYTES = 2_000_000_000  # an FMU file's unpacked size (it is unpacked to run)
+MAX_MODEL_DESCRIPTION_BYTES = 50_000_000
 
 
 class ScenarioError(ValueError):
@@ -80,7 +97,7 @@ _IDENT = r"^[A-Za-z_][A-Za-z0-9_-]*$"
 
 
 class ScenarioModel(_Strict):
-    name: str = Field(pattern=_IDENT, description="also the results folder name")
+    name: str = Field(pattern=_IDENT, max_length=100, description="also the results folder name")
     description: str = ""
     vessel: str
     duration: float = Field(gt=0)
@@ -138,6 +155,31 @@ class Scenario:
 
     def instance(self, name: str) -> Instance:
         return next(i for i in self.instances if i.name == name)
+
+    @property
+    def n_steps(self) -> int:
+        return round(self.duration / self.step)
+
+    @property
+    def n_samples(self) -> int:
+        """Recorded rows, the initial one included."""
+        return self.n_steps // self.record_every + 1
+
+    @property
+    def result_bytes(self) -> int:
+        """Memory the recorded results take during the run (time column included)."""
+        return result_bytes(self.n_samples, len(self.outputs))
+
+
+def result_bytes(n_samples: int, n_signals: int) -> int:
+    return 8 * n_samples * (n_signals + 1)
+
+
+def _size(n: float) -> str:
+    for unit, f in (("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
+        if n >= f:
+            return f"{n / f:.3g} {unit}"
+    return f"{n:.0f} bytes"
 
 
 def scenario_path(name_or_path: str | Path | None) -> Path:
@@ -218,9 +260,25 @@ def hardware_variables(profile: str, vessel: str, path: Path, where: str) -> dic
     return out
 
 
+def check_fmu_archive(fmu: Path) -> None:
+    """Bound what running the FMU would unpack, from the zip directory alone (nothing extracted)."""
+    with zipfile.ZipFile(fmu) as zf:
+        infos = zf.infolist()
+    md = next((i for i in infos if i.filename == "modelDescription.xml"), None)
+    if md is None:
+        raise ValueError("no modelDescription.xml in the archive")
+    if md.file_size > MAX_MODEL_DESCRIPTION_BYTES:
+        raise ValueError(f"modelDescription.xml unpacks to {_size(md.file_size)}; the limit is "
+                         f"{_size(MAX_MODEL_DESCRIPTION_BYTES)}")
+    total = sum(i.file_size for i in infos)
+    if total > MAX_FMU_UNPACKED_BYTES:
+        raise ValueError(f"unpacks to {_size(total)}; the limit is {_size(MAX_FMU_UNPACKED_BYTES)}")
+
+
 def fmu_file_variables(fmu: Path) -> dict[str, VarInfo]:
     from fmpy import read_model_description
 
+    check_fmu_archive(fmu)
     md = read_model_description(str(fmu))
     if md.fmiVersion != "2.0" or md.coSimulation is None:
         raise ValueError(f"seafmu runs FMI 2.0 co-simulation FMUs; this is FMI {md.fmiVersion}"
@@ -296,6 +354,45 @@ def _check_link(src: VarInfo, dst: VarInfo, left: str, right: str, path: Path, w
         raise _fail(path, where, f"unit mismatch: {left} is in {src.unit}, {right} in {dst.unit}")
 
 
+def _window(c: Check) -> str:
+    return f"t >= {c.after:g} s" + (f", t <= {c.before:g} s" if c.before is not None else "")
+
+
+def time_slack(t: float) -> float:
+    """How far a sample time may miss a window edge and still count as on it: 1e-9 relative (1e-9 s
+    below 1 s). Above float rounding at any time, and far below the step (at most 1e7 steps)."""
+    return 1e-9 * max(1.0, abs(t))
+
+
+def _window_has_samples(after: float, before: float | None, dt_rec: float, last: int) -> bool:
+    """Whether a recorded sample t_i = i dt_rec, i = 0..last, lies in [after, before] (with
+    ``time_slack``, as the checks evaluate it)."""
+    i0 = max(0, math.ceil((after - time_slack(after)) / dt_rec))
+    if i0 > last:
+        return False
+    return before is None or i0 * dt_rec <= before + time_slack(before)
+
+
+def _check_time_grid(model: ScenarioModel, path: Path) -> float:
+    """Duration and step within their bounds, a bounded whole number of steps: duration / step."""
+    d, h = model.duration, model.step
+    if d > MAX_DURATION:
+        raise _fail(path, "duration", f"{d:g} s is above the limit of {MAX_DURATION:g} s "
+                    f"({MAX_DURATION / 86400:.0f} days)")
+    if h < MIN_STEP:
+        raise _fail(path, "step", f"{h:g} s is below the smallest step, {MIN_STEP:g} s")
+    if h > d:
+        raise _fail(path, "step", f"{h:g} s is longer than the duration {d:g} s")
+    ratio = d / h
+    if ratio > MAX_STEPS + 0.5:
+        raise _fail(path, "step", f"{d:g} s in steps of {h:g} s is {ratio:.3g} steps; a run is limited "
+                    f"to {MAX_STEPS:.0e} steps (a longer step or a shorter run)")
+    if abs(ratio - round(ratio)) > 1e-6 * max(1.0, ratio):
+        raise _fail(path, "step",
+                    f"duration {model.duration} s is not a whole number of steps of {model.step} s")
+    return ratio
+
+
 def resolve(model: ScenarioModel, path: Path) -> Scenario:
     from components.vessel_spec import VesselFileError, bundled_vessels, load_vessel
     from seafmu.build import VESSELS
@@ -303,18 +400,19 @@ def resolve(model: ScenarioModel, path: Path) -> Scenario:
     try:
         load_vessel(model.vessel)
     except VesselFileError as exc:
-        raise _fail(path, "vessel", f"{exc} (bundled: {', '.join(bundled_vessels())})") from None
+        known = "" if "bundled:" in str(exc) else f" (bundled: {', '.join(bundled_vessels())})"
+        raise _fail(path, "vessel", f"{exc}{known}") from None
     if model.vessel not in VESSELS:
         raise _fail(path, "vessel", f"'{model.vessel}' has no FMUs (FMUs are built for "
                     f"{', '.join(VESSELS)}); load another vessel file of the same interface with "
                     "the plant parameter vessel_file")
 
-    ratio = model.duration / model.step
-    if abs(ratio - round(ratio)) > 1e-6 * max(1.0, ratio):
-        raise _fail(path, "step",
-                    f"duration {model.duration} s is not a whole number of steps of {model.step} s")
+    ratio = _check_time_grid(model, path)
+    n_steps = round(ratio)
     if model.fmus is not None and not model.fmus:
         raise _fail(path, "fmus", "lists no FMU (leave the field out for the vessel's four FMUs)")
+    if model.fmus is not None and len(model.fmus) > MAX_FMUS:
+        raise _fail(path, "fmus", f"{len(model.fmus)} FMUs; a scenario is limited to {MAX_FMUS}")
     entries = model.fmus if model.fmus is not None else {k: FmuEntry(kind=k) for k in KINDS}
     instances: list[Instance] = []
     for name, e in entries.items():
@@ -413,16 +511,22 @@ def resolve(model: ScenarioModel, path: Path) -> Scenario:
 
     record_every = 1
     if model.record_interval is not None:
+        if model.record_interval > model.duration:
+            raise _fail(path, "record_interval", f"{model.record_interval:g} s is longer than the duration "
+                        f"{model.duration:g} s")
         r = model.record_interval / model.step
         if r < 1 - 1e-9 or abs(r - round(r)) > 1e-6:
             raise _fail(path, "record_interval", f"{model.record_interval} s must be a whole multiple of "
                         f"the step {model.step} s")
         record_every = round(r)
-        if round(ratio) % record_every:
+        if n_steps % record_every:
             raise _fail(path, "record_interval", f"{model.record_interval} s does not divide the duration "
                         f"{model.duration} s (the last sample would be lost)")
     for inst in instances:
-        if round(ratio) % inst.step_multiple:
+        if inst.step_multiple > n_steps:
+            raise _fail(path, f"fmus.{inst.name}.step_multiple", f"{inst.step_multiple} is more than the "
+                        f"run's {n_steps} steps")
+        if n_steps % inst.step_multiple:
             raise _fail(path, f"fmus.{inst.name}.step_multiple", f"{inst.step_multiple} steps of "
                         f"{model.step} s do not divide the duration {model.duration} s")
 
@@ -453,6 +557,18 @@ def resolve(model: ScenarioModel, path: Path) -> Scenario:
                 recorded.add((inst, var))
         if c.after >= model.duration:
             raise _fail(path, f"checks[{k}].after", f"{c.after} s is not before the end of the run")
+        dt_rec = model.step * record_every
+        if not _window_has_samples(c.after, c.before, dt_rec, n_steps // record_every):
+            raise _fail(path, f"checks[{k}]", f"the window {_window(c)} contains no recorded sample "
+                        f"(samples every {dt_rec:g} s)")
+
+    n_samples = n_steps // record_every + 1
+    need = result_bytes(n_samples, len(outputs))
+    if need > MAX_RESULT_BYTES:
+        raise _fail(path, "record_interval" if model.record_interval is not None else "step",
+                    f"{n_samples} samples x {len(outputs) + 1} columns = {_size(need)} of results in memory; "
+                    f"the limit is {_size(MAX_RESULT_BYTES)} (record less often with record_interval, "
+                    "or fewer outputs)")
 
     return Scenario(
         name=model.name,

@@ -31,25 +31,42 @@ class UnitError(ValueError):
     """A value whose unit is unknown or does not fit the variable."""
 
 
+def _show(value: object, limit: int = 60) -> str:
+    """repr of a value for a one-line message, cut to ``limit`` characters."""
+    try:
+        text = repr(value)
+    except ValueError:  # an int of more than 4300 digits has no repr
+        text = f"<a {type(value).__name__} too large to show>"
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
 def to_si(value: object, target_unit: str) -> float:
-    """Convert a number or a ``"<number> <unit>"`` string to ``target_unit``."""
+    """Convert a number or a ``"<number> <unit>"`` string to ``target_unit``.
+
+    Never raises anything but ``UnitError``; the result may be inf or NaN (``"1e999 m"``, ``"nan"``):
+    callers that need a finite number check it.
+    """
     if isinstance(value, bool):
         raise UnitError(f"expected a number, got {value!r}")
     if isinstance(value, int | float):
-        return float(value)
+        try:
+            return float(value)
+        except OverflowError:
+            raise UnitError(f"{_show(value)} is too large for a floating-point number") from None
     if not isinstance(value, str):
-        raise UnitError(f"expected a number or '<number> <unit>', got {value!r}")
+        raise UnitError(f"expected a number or '<number> <unit>', got {_show(value)}")
     m = _QUANTITY.match(value)
     if not m:
         try:
             return float(value)
         except ValueError:
-            raise UnitError(f"expected a number or '<number> <unit>', got {value!r}") from None
+            raise UnitError(f"expected a number or '<number> <unit>', got {_show(value)}") from None
     number, unit = float(m.group(1)), m.group(2)
     if unit not in _UNITS:
-        raise UnitError(f"unknown unit '{unit}' in {value!r} (known: {', '.join(sorted(_UNITS))})")
+        raise UnitError(f"unknown unit {_show(unit, 30)} in {_show(value)} "
+                        f"(known: {', '.join(sorted(_UNITS))})")
     si, factor = _UNITS[unit]
     if si != (target_unit or "1"):
         shown = target_unit or "1"
-        raise UnitError(f"unit '{unit}' in {value!r} does not fit this variable's unit '{shown}'")
+        raise UnitError(f"unit '{unit}' in {_show(value)} does not fit this variable's unit '{shown}'")
     return number * factor

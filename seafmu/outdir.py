@@ -1,0 +1,105 @@
+"""The output folder of ``seafmu run``: one run at a time, no stale files, files complete or absent.
+
+- A run holds an exclusive ``fcntl.flock`` on ``<folder>/.seafmu-run.lock`` (its PID inside) for
+  its whole life; a second run into the same folder fails at once with one line (exit 2). The
+  kernel drops the lock when the process ends, however it ends, so a killed run never leaves the
+  folder locked. The lock file itself stays (deleting it would let two runs lock two files).
+- Under the lock, the previous run's outputs (``OUTPUTS``, ``OUTPUT_DIRS``) are removed before
+  anything is written: old and new files are never mixed. Other files in the folder are left alone.
+- Files written whole (summary, plots, report) are written to a temporary name in the same folder
+  and renamed over the target (``os.replace``, atomic on POSIX): a reader sees the old or the new
+  file, never half of one, whenever the writer is stopped.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import os
+import shutil
+from collections.abc import Iterator
+from pathlib import Path
+
+LOCK_FILE = ".seafmu-run.lock"
+OUTPUTS = ("results.csv", "summary.json", "report.md", "trajectory.png", "states.png", "thrusters.png",
+           "allocation.png")
+OUTPUT_DIRS = ("recording",)
+
+
+class OutputFolderError(RuntimeError):
+    """The output folder cannot be used (locked by another run); the message is one line."""
+
+
+@contextlib.contextmanager
+def atomic_path(path: Path) -> Iterator[Path]:
+    """A temporary path beside ``path``; renamed over it when the block ends without error."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            tmp.unlink()
+
+
+def atomic_write_text(path: Path, text: str) -> None:
+    with atomic_path(path) as tmp:
+        with open(tmp, "w", encoding="utf-8") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+
+
+class RunFolder:
+    """``with RunFolder(path):`` — the folder created, locked for this run, and cleared of old outputs."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = Path(path)
+        self._fd: int | None = None
+
+    def __enter__(self) -> RunFolder:
+        self.path.mkdir(parents=True, exist_ok=True)
+        lock = self.path / LOCK_FILE
+        fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            owner = os.pread(fd, 32, 0).decode("ascii", "replace").strip()
+            os.close(fd)
+            who = f" (pid {owner})" if owner.isdigit() else ""
+            raise OutputFolderError(f"{self.path}: in use by another seafmu run{who}; wait for it to end "
+                                    "or choose another folder with -o") from None
+        except OSError:
+            os.close(fd)
+            raise
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        self._fd = fd
+        try:
+            self.clear()
+        except BaseException:
+            self.release()
+            raise
+        return self
+
+    def clear(self) -> None:
+        """Remove the outputs a previous run left (and the temporary files of a killed one)."""
+        for name in OUTPUTS:
+            for p in (self.path / name, *self.path.glob(f".{name}.*.tmp")):
+                with contextlib.suppress(FileNotFoundError):
+                    p.unlink()
+        for name in OUTPUT_DIRS:
+            d = self.path / name
+            if d.is_dir() and not d.is_symlink():
+                shutil.rmtree(d)
+            elif d.exists() or d.is_symlink():
+                d.unlink()
+
+    def release(self) -> None:
+        if self._fd is not None:
+            fcntl.flock(self._fd, fcntl.LOCK_UN)
+            os.close(self._fd)
+            self._fd = None
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()
