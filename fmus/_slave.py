@@ -77,8 +77,8 @@ _Py_IncRef = ctypes.pythonapi.Py_IncRef
 _Py_IncRef.argtypes = [ctypes.py_object]
 _Py_IncRef.restype = None
 
-# Instances the C++ wrapper holds (it asked for their log queue): the static state methods, which
-# the wrapper calls on the class, compensate these when they raise (they cannot know the caller).
+# Instances the C++ wrapper holds (it asked for their log queue): the state (de)serialisation,
+# which the wrapper calls on the class, looks for its caller among them (_sole_caller).
 _HOSTED: weakref.WeakSet[BlockSlave] = weakref.WeakSet()
 
 
@@ -172,11 +172,11 @@ class BlockSlave(Fmi2Slave):
     def __init__(self, **kwargs: Any) -> None:
         # Never raise after the first successful instantiation of the class (fmi2Reset calls
         # __init__ again, and an exception there is over-released differently) and never log.
+        if kwargs.get("resources"):  # inside an FMU host (and at build time: a harmless extra)
+            _GLOBALS_REFS.append(vars(sys.modules[type(self).__module__]))  # first: always balanced
         super().__init__(**kwargs)
         if self.GUID:
             self.guid = uuid.UUID(self.GUID)
-        if self.resources:  # inside an FMU host, not at build time
-            _GLOBALS_REFS.append(vars(sys.modules[type(self).__module__]))
         self._hosted = False
         self._queue: list[Any] | None = None
         cached = self._INTERFACES.get(type(self))
