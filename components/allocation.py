@@ -1,22 +1,27 @@
 """Thrust allocation: generalised force tau -> thruster thrusts T -> shaft speed commands n.
 
-Methods (allocator parameter ``method``; 0 is the default and the behaviour before the QP existed):
+Allocation laws are named variants (``components.registry.ALLOCATORS``); the vessel file names its
+own (``gnc.allocator``) and the block's string parameter ``allocator`` may choose another:
 
-- 0, pseudo-inverse + clip. Over-actuated vessels (Minerva 2; any vessel that is not the two-screw
-  case): weighted pseudo-inverse T = W^-1 B^T (B W^-1 B^T)^-1 tau (minimum weighted thrust energy,
-  the thesis's method), then per-thruster limits. A 3-DOF vessel with exactly two thrusters (AMV
-  OSF, two fixed screws): solve the surge and yaw rows exactly (2 x 2), then saturate with heading
-  priority (the yaw part is kept, the surge part scaled down). Sway is not controllable there.
-- 1, constrained QP (``QPAllocator``, solver DAQP): minimum weighted energy subject to asymmetric
-  thrust limits, thrust-rate limits and B T = tau + s with an exactly penalised slack s whose
-  per-DOF priorities decide what is given up first when tau is out of reach (heading before surge
-  by default). Equal to method 0 whenever no limit is active.
-- 2, weighted camera-jet (thesis): method 0 with the weight of each camera thruster (``camera_i``,
-  by default the fore horizontal thrusters 1 and 2 of Minerva 2, whose jets hit the cameras) raised
-  to S = ``camera_weight`` (thesis 1e8) only when its thrust would be negative; one re-solve.
-- 3, QP with minimum negative camera thrust: method 1 plus a variable z_k >= -T_k, z_k >= 0 per
-  camera thruster with an exact penalty ``camera_penalty`` on z: the thesis's indicator (sum of
-  negative front thrust) is minimised above the allocation error (default), inside the limits.
+- ``pinv``: weighted pseudo-inverse T = W^-1 B^T (B W^-1 B^T)^-1 tau (minimum weighted thrust
+  energy, the Minerva 2 thesis's method), then per-thruster limits (clip).
+- ``two_screw`` (AMV OSF, two fixed screws): solve the surge and yaw rows exactly (2 x 2), then
+  saturate with heading priority (the yaw part is kept, the surge part scaled down). Sway is not
+  demanded. With a thruster disabled it falls back to ``pinv`` on the rest.
+- ``qp``: constrained QP (``QPAllocator``, solver DAQP): minimum weighted energy subject to
+  asymmetric thrust limits, thrust-rate limits and B T = tau + s with an exactly penalised slack s
+  whose per-DOF priorities decide what is given up first when tau is out of reach (heading before
+  surge by default). Equal to ``pinv`` whenever no limit is active.
+- ``pinv_camera``, weighted camera-jet (thesis): ``pinv`` with the weight of each camera thruster
+  (``camera_i``, by default the vessel file's ``gnc.camera_thrusters``: Minerva 2's fore horizontal
+  thrusters 1 and 2, whose jets hit the cameras) raised to S = ``camera_weight`` (thesis 1e8) only
+  when its thrust would be negative; one re-solve.
+- ``qp_camera``, QP with minimum negative camera thrust: ``qp`` plus a variable z_k >= -T_k,
+  z_k >= 0 per camera thruster with an exact penalty ``camera_penalty`` on z: the thesis's
+  indicator (sum of negative front thrust) is minimised above the allocation error (default).
+
+The integer parameter ``method`` is the selector from before the registry, kept for existing
+scenarios: 0 = the variant named by ``allocator``, 1 = ``qp``, 2 = ``pinv_camera``, 3 = ``qp_camera``.
 
 The thesis's benchmark variant "drop thruster 1 and solve 6 x 6" is ``enable_1 = 0`` with any method.
 
@@ -40,9 +45,10 @@ from typing import Any
 
 import numpy as np
 
-from components.block import Block, Interface, Signal
-from components.thrusters import max_thrust, speed_to_thrust, thrust_to_speed, thruster_matrix
-from components.vessel_spec import VesselSpec
+from . import registry
+from .block import Block, Interface, Signal
+from .thrusters import max_thrust, speed_to_thrust, thrust_to_speed, thruster_matrix
+from .vessel_spec import VesselSpec
 
 FORCE_UNIT = {"X": "N", "Y": "N", "Z": "N", "K": "N.m", "M": "N.m", "N": "N.m"}
 
@@ -129,13 +135,7 @@ def thrust_capability(vessel: VesselSpec) -> np.ndarray:
     T_min, T_max = max_thrust(th)
     B = thruster_matrix(th, vessel.dof)
     out = np.zeros(vessel.dof)
-    if _two_screw(vessel):
-        rows = [0, 2]  # surge and yaw: the sway that comes with yaw is not a demand
-        P = np.zeros((2, vessel.dof))
-        P[:, rows] = np.linalg.inv(B[rows, :])
-    else:
-        rows = list(range(vessel.dof))
-        P = allocation_matrix(B)
+    rows, P = declared_law(vessel).capability_matrix(vessel, B)
     for j in rows:
         e = np.zeros(vessel.dof)
         e[j] = 1.0
@@ -157,8 +157,16 @@ def _max_gain(T: np.ndarray, T_min: np.ndarray, T_max: np.ndarray) -> float:
     return float(s)
 
 
-def _two_screw(vessel: VesselSpec) -> bool:
-    return vessel.dof == 3 and vessel.thrusters.count == 2
+def declared_law_name(vessel: VesselSpec) -> str:
+    """The allocation variant the vessel file names (``gnc.allocator``)."""
+    if vessel.gnc is None:
+        raise ValueError(f"vessel '{vessel.name}' names no GNC variants (gnc section)")
+    return vessel.gnc.allocator
+
+
+def declared_law(vessel: VesselSpec) -> AllocationLaw:
+    """The allocation law the vessel file names (``gnc.allocator``)."""
+    return registry.allocator_law(declared_law_name(vessel))
 
 
 # --- constrained QP allocation ------------------------------------------------------------------
@@ -368,31 +376,123 @@ def negative_front_thrust(T: np.ndarray, camera: Sequence[int]) -> float:
 
 
 def default_camera_thrusters(vessel: VesselSpec) -> list[int]:
-    """0-based thrusters whose reverse jet hits the cameras: horizontal (|d_z| < 0.5) and forward
-    of the origin (x > 0), on a vessel with more than two thrusters (Minerva 2: thrusters 1, 2)."""
-    th = vessel.thrusters
-    if th.count <= 2:
-        return []
-    return [i for i in range(th.count) if th.positions[i][0] > 0.0 and abs(th.directions[i][2]) < 0.5]
+    """0-based thrusters whose reverse jet hits the cameras: the vessel file's
+    ``gnc.camera_thrusters`` (Minerva 2: the fore horizontal thrusters 1 and 2; none elsewhere)."""
+    return list(vessel.gnc.camera_thrusters) if vessel.gnc is not None else []
 
 
 # --- the block ----------------------------------------------------------------------------------
 
-METHODS = ("pseudo-inverse + clip", "QP", "weighted camera-jet", "QP, min negative camera thrust")
+METHODS = ("the variant named by 'allocator'", "qp", "pinv_camera", "qp_camera")
 _SAT_TOL = 1e-6  # N: a thrust this close to a bound counts as saturated
 
 
-def _priority_defaults(vessel: VesselSpec) -> dict[str, float]:
-    """Moments first (10: heading, and roll/pitch, which a lost moment would tip), forces 1.
+class AllocationLaw:
+    """One named allocation variant (``registry.ALLOCATORS``): how tau becomes thrusts in a box.
 
-    Minerva 2's vertical thrusters make sway and roll together: with roll priority 1 the saturated
-    move of scenario minerva2_thruster_failure rolls 2.8 deg (0.6 deg with 10); 100 made a start in
-    a strong current drift away (docs/allocation.md). The two screws cannot make sway: 0 there.
+    Stateless: the block owns the state (weights, cached matrices, QP workspaces, last thrusts) and
+    keeps only the variant's name, so a block's state never depends on which law object exists.
     """
-    out = {t: (10.0 if t in ("K", "M", "N") else 1.0) for t in vessel.tau_names}
-    if _two_screw(vessel):
+
+    uses_qp = False  # the block sets up a QPAllocator for it
+    camera = False  # keeps the camera thrusters out of reverse
+
+    def rows(self, vessel: VesselSpec) -> list[int]:
+        """The DOFs the law allocates (all by default)."""
+        return list(range(vessel.dof))
+
+    def priority_defaults(self, vessel: VesselSpec) -> dict[str, float]:
+        """QP priorities: moments first (10: heading, and roll/pitch, which a lost moment would
+        tip), forces 1. Minerva 2's vertical thrusters make sway and roll together: with roll
+        priority 1 the saturated move of scenario minerva2_thruster_failure rolls 2.8 deg (0.6 deg
+        with 10); 100 made a start in a strong current drift away (docs/allocation.md)."""
+        return {t: (10.0 if t in ("K", "M", "N") else 1.0) for t in vessel.tau_names}
+
+    def capability_matrix(self, vessel: VesselSpec, B: np.ndarray) -> tuple[list[int], np.ndarray]:
+        """(rows, P) with T = P tau for a pure demand in one of the rows (default weights)."""
+        return self.rows(vessel), allocation_matrix(B)
+
+    def allocate(self, blk: AllocatorBlock, tau: np.ndarray, lo: np.ndarray,
+                 hi: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+        """Thrusts in [lo, hi], saturation flags, QP iterations (0 here)."""
+        T, sat = blk.pseudo_inverse(tau, lo, hi)
+        return T, sat, 0
+
+
+class PseudoInverseLaw(AllocationLaw):
+    """``pinv``: weighted pseudo-inverse, then clip into the box."""
+
+
+class CameraWeightedLaw(PseudoInverseLaw):
+    """``pinv_camera``: the thesis's S on camera thrusters that would go negative."""
+
+    camera = True
+
+
+class QPLaw(AllocationLaw):
+    """``qp``: the constrained QP; pseudo-inverse + clip if DAQP fails (flag < 0)."""
+
+    uses_qp = True
+
+    def allocate(self, blk: AllocatorBlock, tau: np.ndarray, lo: np.ndarray,
+                 hi: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+        qp = blk._qp
+        T, flag = qp.solve(tau, lo, hi)
+        if flag >= 0:
+            sat = ((T <= lo + _SAT_TOL) | (T >= hi - _SAT_TOL)) & ~blk._off
+            return T, sat, qp.iterations
+        qp.cold_start()  # never keep a failed active set
+        T, sat = blk.pseudo_inverse(tau, lo, hi)
+        return T, sat, -1
+
+
+class CameraQPLaw(QPLaw):
+    """``qp_camera``: the QP minimising the negative thrust of the camera thrusters."""
+
+    camera = True
+
+
+class TwoScrewLaw(AllocationLaw):
+    """``two_screw``: surge and yaw rows solved exactly, heading priority in saturation
+    (``priority_allocation``); sway is not demanded. With a thruster disabled: ``pinv``."""
+
+    @staticmethod
+    def _rows(vessel: VesselSpec) -> list[int]:
+        names = vessel.tau_names
+        return [names.index("X"), names.index("N")]
+
+    def rows(self, vessel: VesselSpec) -> list[int]:
+        return self._rows(vessel)
+
+    def priority_defaults(self, vessel: VesselSpec) -> dict[str, float]:
+        """Sway 0: the two screws' side force only comes with a yaw moment, it is never demanded."""
+        out = super().priority_defaults(vessel)
         out["Y"] = 0.0
-    return out
+        return out
+
+    def capability_matrix(self, vessel: VesselSpec, B: np.ndarray) -> tuple[list[int], np.ndarray]:
+        rows = self._rows(vessel)  # surge and yaw: the sway that comes with yaw is not a demand
+        if B.shape[1] != 2:
+            raise ValueError(f"allocator 'two_screw' needs exactly two thrusters, vessel '{vessel.name}' "
+                             f"has {B.shape[1]}")
+        P = np.zeros((2, vessel.dof))
+        P[:, rows] = np.linalg.inv(B[rows, :])
+        return rows, P
+
+    def allocate(self, blk: AllocatorBlock, tau: np.ndarray, lo: np.ndarray,
+                 hi: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+        if blk._any_off:
+            return super().allocate(blk, tau, lo, hi)
+        rows = self._rows(blk.vessel)
+        T = priority_allocation(blk.B[rows], tau[rows], blk.T_min, blk.T_max)
+        Tc = np.minimum(np.maximum(T, lo), hi)
+        sat = (Tc <= lo + _SAT_TOL) | (Tc >= hi - _SAT_TOL)
+        return Tc, sat, 0
+
+
+def _priority_defaults(vessel: VesselSpec) -> dict[str, float]:
+    """QP priorities of the vessel's own allocation law (see ``AllocationLaw.priority_defaults``)."""
+    return declared_law(vessel).priority_defaults(vessel)
 
 
 class AllocatorBlock(Block):
@@ -437,9 +537,9 @@ class AllocatorBlock(Block):
                                  "or failed (thrust counted as that of stuck_n; command 0)", min=0, max=1,
                                  start=1, type="integer", tunable=True))
         # Added with the QP allocator.
-        params.append(Signal("method", "", "0 = pseudo-inverse + clip (two screws: heading priority), "
-                             "1 = constrained QP, 2 = weighted camera-jet (thesis S on camera thrusters "
-                             "going negative), 3 = QP minimising negative camera thrust",
+        params.append(Signal("method", "", "legacy selector: 0 = the variant named by 'allocator', 1 = qp "
+                             "(constrained QP), 2 = pinv_camera (thesis S on camera thrusters going "
+                             "negative), 3 = qp_camera (QP minimising negative camera thrust)",
                              min=0, max=len(METHODS) - 1, start=0, type="integer", tunable=True))
         camera = default_camera_thrusters(vessel)
         for i in range(m):
@@ -464,6 +564,10 @@ class AllocatorBlock(Block):
             params.append(Signal(f"stuck_n_{i + 1}", "rev/s", f"shaft speed of thruster {th.names[i]} "
                                  "while enable = 0 (0 = stopped; else the speed it is stuck at): its "
                                  "thrust is a known force", min=-n_max, max=n_max, start=0.0, tunable=True))
+        # Added with the registry of named variants.
+        params.append(Signal("allocator", "", f"allocation variant ({', '.join(registry.ALLOCATORS)}); "
+                             "default: the vessel file's gnc.allocator. Used when method = 0",
+                             start=declared_law_name(vessel), type="string", tunable=True))
         return Interface(inputs=inputs, outputs=outputs, parameters=params)
 
     def __init__(self, vessel: VesselSpec, params: dict[str, Any]) -> None:
@@ -475,8 +579,6 @@ class AllocatorBlock(Block):
         self.T_min, self.T_max = max_thrust(th)
         self._U = float(max(np.abs(self.T_min).max(), self.T_max.max()))
         self._C = error_scale(self.B, self._U)  # QP: thrust-equivalent scale of each DOF's error
-        self._two_screw = _two_screw(vessel)
-        self._rows2 = [0, 2]  # surge and yaw rows of the 3-DOF B
         self._cache: dict[tuple, np.ndarray] = {}
         self._qps: dict[tuple, QPAllocator] = {}
         m, d = self._m, vessel.dof
@@ -488,6 +590,12 @@ class AllocatorBlock(Block):
 
     # -- parameters ----------------------------------------------------------------------------
     def _check(self, name: str, value: Any) -> None:
+        if name == "allocator":
+            try:
+                registry.check("allocator", value)
+            except ValueError as exc:
+                raise ValueError(f"allocator: parameter 'allocator': {exc}") from None
+            return
         try:
             v = float(value)
         except (TypeError, ValueError):
@@ -503,8 +611,8 @@ class AllocatorBlock(Block):
         if binary and v not in (0.0, 1.0):
             raise ValueError(f"allocator: parameter '{name}' must be 0 or 1, got {value!r}")
         if name == "method" and v not in range(len(METHODS)):
-            raise ValueError(f"allocator: parameter 'method' must be one of 0..{len(METHODS) - 1} "
-                             f"({', '.join(METHODS)}), got {value!r}")
+            choices = ", ".join(f"{i} = {m}" for i, m in enumerate(METHODS))
+            raise ValueError(f"allocator: parameter 'method' must be one of {choices}, got {value!r}")
         if name.startswith("stuck_n_"):
             n_max = float(self.vessel.thrusters.n_max[int(name.rsplit("_", 1)[1]) - 1])
             if abs(v) > n_max:
@@ -519,11 +627,14 @@ class AllocatorBlock(Block):
     def _apply_params(self) -> None:
         m, p, th = self._m, self.params, self.vessel.thrusters
         self._method = int(float(p["method"]))
+        # The active variant's name (the law object itself is looked up, never stored: state).
+        self._variant = registry.LEGACY_METHODS[self._method] or str(p["allocator"])
+        law = self._law
         self._w = np.array([float(p[f"w_{i + 1}"]) for i in range(m)])
         self._enabled = tuple(int(float(p[f"enable_{i + 1}"])) == 1 for i in range(m))
         self._camera = [i for i in range(m) if int(float(p[f"camera_{i + 1}"])) == 1]
         rw = np.array([float(p[f"reverse_weight_{i + 1}"]) for i in range(m)])
-        if self._method == 2:  # thesis S on the camera thrusters (a larger reverse_weight still wins)
+        if law.camera and not law.uses_qp:  # thesis S on camera thrusters (a larger reverse_weight wins)
             for i in self._camera:
                 rw[i] = max(rw[i], float(p["camera_weight"]))
         self._rw = rw
@@ -536,9 +647,17 @@ class AllocatorBlock(Block):
         self._T_fixed = np.where(off, speed_to_thrust(th, stuck), 0.0)
         self._tau_fixed = self.B @ self._T_fixed
         self._priority = np.array([float(p[f"priority_{t}"]) for t in self.vessel.tau_names])
-        self._use_priority = self._two_screw and not self._any_off and self._method in (0, 2)
         self._P = self._matrix(self._w)
-        self._qp = self._qp_for() if self._method in (1, 3) else None
+        self._qp = self._qp_for() if law.uses_qp else None
+
+    @property
+    def _law(self) -> AllocationLaw:
+        return registry.allocator_law(self._variant)
+
+    @property
+    def variant(self) -> str:
+        """Name of the allocation variant in use (``registry.ALLOCATORS``)."""
+        return self._variant
 
     def _matrix(self, w: np.ndarray) -> np.ndarray:
         """Full-size allocation matrix (zero rows for dropped thrusters), cached per weight set."""
@@ -554,7 +673,7 @@ class AllocatorBlock(Block):
 
     def _qp_for(self) -> QPAllocator:
         """The QP of the current method and weights, built once per set (failures only move bounds)."""
-        camera = tuple(self._camera) if self._method == 3 else ()
+        camera = tuple(self._camera) if self._law.camera else ()
         penalty = float(self.params["camera_penalty"]) if camera else 0.0
         key = (tuple(self._w.tolist()), tuple(self._priority.tolist()), camera, penalty)
         qp = self._qps.get(key)
@@ -581,26 +700,13 @@ class AllocatorBlock(Block):
     def allocate(self, tau: np.ndarray, h: float | None = None) -> tuple[np.ndarray, np.ndarray, int]:
         """Thrusts within the bounds for ``tau``, saturation flags, QP iterations (-1 = QP failed)."""
         lo, hi = self.box(h)
-        if self._qp is not None:
-            T, flag = self._qp.solve(tau, lo, hi)
-            if flag >= 0:
-                sat = ((T <= lo + _SAT_TOL) | (T >= hi - _SAT_TOL)) & ~self._off
-                return T, sat, self._qp.iterations
-            self._qp.cold_start()  # never keep a failed active set
-            T, sat = self._pseudo_inverse(tau, lo, hi)
-            return T, sat, -1
-        T, sat = self._pseudo_inverse(tau, lo, hi)
-        return T, sat, 0
+        return self._law.allocate(self, tau, lo, hi)
 
-    def _pseudo_inverse(
+    def pseudo_inverse(
         self, tau: np.ndarray, lo: np.ndarray, hi: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Methods 0 and 2 (and the fallback of a failed QP): pseudo-inverse, then clip into the box."""
-        if self._use_priority:
-            T = priority_allocation(self.B[self._rows2], tau[self._rows2], self.T_min, self.T_max)
-            Tc = np.minimum(np.maximum(T, lo), hi)
-            sat = (Tc <= lo + _SAT_TOL) | (Tc >= hi - _SAT_TOL)
-            return Tc, sat
+        """``pinv`` and ``pinv_camera`` (and the fallback of a failed QP): pseudo-inverse with the
+        block's weights (reverse weights raised where thrust would go negative), then clip."""
         if self._any_off:
             tau = tau - self._tau_fixed
         T = self._P @ tau

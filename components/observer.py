@@ -59,10 +59,10 @@ from typing import Any
 import numpy as np
 from scipy.special import chdtri
 
-from components.allocation import FORCE_UNIT
-from components.block import Block, Interface, Signal
-from components.kinematics import m2c, rzyx, wrap_angle
-from components.vessel_spec import ANGLE_NAMES, VesselSpec, state_unit
+from .allocation import FORCE_UNIT
+from .block import Block, Interface, Signal
+from .dynamics import coriolis_tensor, restoring_coefficients, rzyx, wrap_angle
+from .vessel_spec import ANGLE_NAMES, VesselSpec, state_unit
 
 PREDICT_DT_MAX = 0.05  # s: largest prediction sub-step
 Q_ETA = 1e-8  # (m or rad)^2/s: tiny kinematic process noise, keeps P positive definite
@@ -101,17 +101,6 @@ class _Channels:
 def chi2_quantile(p: float, m: int) -> float:
     """x with P(chi2_m <= x) = p (scipy.special, not scipy.stats: the FMU loads faster)."""
     return float(chdtri(m, 1.0 - p))
-
-
-def coriolis_tensor(M: np.ndarray) -> np.ndarray:
-    """G with G @ nu = d(C(nu) nu)/d nu and C(nu) nu = (G @ nu) @ nu / 2, for C = m2c(M, .).
-
-    C(nu) nu = sum_jk T_ijk nu_j nu_k with T_ijk = C(e_j)_ik (m2c is linear in nu), so the
-    Jacobian is sum_k (T_ilk + T_ikl) nu_k.
-    """
-    d = M.shape[0]
-    T = np.stack([m2c(M, np.eye(d)[j]) for j in range(d)], axis=1)  # T[i, j, k] = C(e_j)[i, k]
-    return T + T.transpose(0, 2, 1)
 
 
 class ObserverBlock(Block):
@@ -202,8 +191,7 @@ class ObserverBlock(Block):
             rs = vessel.restoring
             if rs is None:
                 raise ValueError(f"observer: 6-DOF vessel '{vessel.name}' has no restoring section")
-            gx, gy, gz = (rs.weight * np.asarray(rs.r_g) - rs.buoyancy * np.asarray(rs.r_b)).tolist()
-            self._g6 = (rs.weight - rs.buoyancy, gx, gy, gz)
+            self._g6 = restoring_coefficients(rs.weight, rs.buoyancy, rs.r_g, rs.r_b)
         state_names = vessel.eta_names + vessel.nu_names
         self._angle_list = [i for i, nm in enumerate(vessel.eta_names) if nm in ANGLE_NAMES]
 

@@ -26,10 +26,10 @@ import math
 
 import numpy as np
 
-from components.environment import current_body
-from components.kinematics import J, m2c, rzyx, wrap_angle
-from components.thrusters import speed_to_thrust, thruster_matrix
-from components.vessel_spec import VesselSpec
+from .dynamics import J, gvect, m2c, restoring_coefficients, rzyx, wrap_angle
+from .environment import current_body
+from .thrusters import speed_to_thrust, thruster_matrix
+from .vessel_spec import ANGLE_NAMES, VesselSpec
 
 _PI = math.pi
 _TWO_PI = 2.0 * math.pi
@@ -54,7 +54,7 @@ class VesselModel:
         self.D_L = np.array(spec.D_L, dtype=float)
         self.D_Q = np.array(spec.D_Q, dtype=float)
         self.B = thruster_matrix(spec.thrusters, dof)
-        self.angle_index = [2] if dof == 3 else [3, 4, 5]
+        self.angle_index = [i for i, name in enumerate(spec.eta_names) if name in ANGLE_NAMES]
 
         # nu_dot = K @ [T, C+g, nu_r, |nu_r| nu_r]
         self._K = self.Minv @ np.hstack([self.B, -np.eye(dof), -self.D_L, -self.D_Q])
@@ -75,8 +75,7 @@ class VesselModel:
                 raise ValueError(f"vessel '{spec.name}': 6-DOF model needs a restoring section")
             self.W, self.Bu = rs.weight, rs.buoyancy
             self.r_g, self.r_b = np.asarray(rs.r_g, float), np.asarray(rs.r_b, float)
-            gx, gy, gz = (self.W * self.r_g - self.Bu * self.r_b).tolist()
-            self._g6 = (self.W - self.Bu, gx, gy, gz)
+            self._g6 = restoring_coefficients(self.W, self.Bu, self.r_g, self.r_b)
 
     # -- hot path ------------------------------------------------------------------------------
     def rhs(
@@ -204,19 +203,7 @@ class VesselModel:
         """g(eta) (Fossen's gvect); zero for 3 DOF (surface vessel in the horizontal plane)."""
         if self.dof == 3:
             return np.zeros(3)
-        W, B = self.W, self.Bu
-        xg, yg, zg = self.r_g
-        xb, yb, zb = self.r_b
-        sphi, cphi = math.sin(eta[3]), math.cos(eta[3])
-        sth, cth = math.sin(eta[4]), math.cos(eta[4])
-        return np.array([
-            (W - B) * sth,
-            -(W - B) * cth * sphi,
-            -(W - B) * cth * cphi,
-            -(yg * W - yb * B) * cth * cphi + (zg * W - zb * B) * cth * sphi,
-            (zg * W - zb * B) * sth + (xg * W - xb * B) * cth * cphi,
-            -(xg * W - xb * B) * cth * sphi - (yg * W - yb * B) * sth,
-        ])
+        return gvect(self.W, self.Bu, float(eta[4]), float(eta[3]), self.r_g, self.r_b)
 
     def current_body(self, eta: np.ndarray, vc_north: float, vc_east: float) -> np.ndarray:
         return current_body(eta, vc_north, vc_east)

@@ -7,12 +7,15 @@ fail with one line naming the file and the field.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import yaml
+
+from . import registry
 
 VESSEL_DIR = Path(__file__).parent / "vessels"
 
@@ -21,6 +24,16 @@ ETA_NAMES = {3: ["north", "east", "yaw"], 6: ["north", "east", "down", "roll", "
 NU_NAMES = {3: ["u", "v", "r"], 6: ["u", "v", "w", "p", "q", "r"]}
 TAU_NAMES = {3: ["X", "Y", "N"], 6: ["X", "Y", "Z", "K", "M", "N"]}
 ANGLE_NAMES = {"roll", "pitch", "yaw"}
+CORIOLIS_FORMS = ("full", "none")  # C_RB(nu) nu + C_A(nu_r) nu_r, or no Coriolis terms (linear models)
+# Units a thruster's speed and thrust coefficient may be given in (``unit:`` beside value and
+# source), with the conversion to what the model works in: shaft speeds in rev/s.
+SPEED_UNITS: dict[str, Callable[[float], float]] = {
+    "rev/s": lambda n: n, "rps": lambda n: n, "rpm": lambda n: n / 60.0,
+}
+K_UNITS: dict[str, dict[str, Callable[[float], float]]] = {
+    "linear": {"N/(rev/s)": lambda k: k, "N/rps": lambda k: k, "N/rpm": lambda k: k * 60.0},
+    "quadratic": {"N/(rev/s)^2": lambda k: k, "N/rps^2": lambda k: k, "N/rpm^2": lambda k: k * 3600.0},
+}
 
 
 def state_unit(name: str) -> str:
@@ -72,6 +85,17 @@ class RestoringSpec:
 
 
 @dataclass
+class GncSpec:
+    """The GNC variants a vessel uses, by name (``components.registry``), and their design data."""
+
+    controller: str  # a name in registry.CONTROLLERS
+    allocator: str  # a name in registry.ALLOCATORS
+    guidance: str = "none"  # a name in registry.GUIDANCE
+    camera_thrusters: list[int] = field(default_factory=list)  # 0-based: reverse jet hits the cameras
+    tuning: dict[str, Any] = field(default_factory=dict)  # controller design data (keys per variant)
+
+
+@dataclass
 class VesselSpec:
     name: str
     title: str
@@ -86,6 +110,8 @@ class VesselSpec:
     source_file: str = ""
     provenance: dict[str, str] = field(default_factory=dict)
     extra: dict[str, Any] = field(default_factory=dict)  # vessel-specific data (e.g. land-mode kinematics)
+    gnc: GncSpec | None = None  # always set by the loader (the file's gnc section is required)
+    coriolis: str = "full"  # one of CORIOLIS_FORMS
 
     @property
     def M(self) -> np.ndarray:
@@ -155,7 +181,9 @@ class _Reader:
             return item["value"]
         return item
 
-    def number(self, node: dict, key: str, where: str, positive: bool = False, default: Any = None) -> float:
+    def number(self, node: dict, key: str, where: str, positive: bool = False, default: Any = None,
+               units: dict[str, Callable[[float], float]] | None = None) -> float:
+        """A finite number; with ``units``, an optional ``unit:`` beside value/source converts it."""
         full = f"{where}.{key}" if where else key
         raw = self.get(node, key, where, required=default is None)
         if raw is None:
@@ -168,7 +196,23 @@ class _Reader:
             raise self.fail(full, "must be finite")
         if positive and val <= 0:
             raise self.fail(full, f"must be positive, got {val}")
+        item = node[key]
+        if isinstance(item, dict) and "unit" in item:
+            if units is None or item["unit"] not in units:
+                known = ", ".join(units) if units else "none (SI only)"
+                raise self.fail(full, f"unknown unit {item['unit']!r}; known: {known}")
+            val = units[item["unit"]](val)
         return val
+
+    def name(self, node: dict, key: str, where: str, kind: str, default: str | None = None) -> str:
+        """A registered variant name (``components.registry``), plain or as {value, source}."""
+        raw = self.get(node, key, where, required=default is None)
+        if raw is None:
+            return str(default)
+        try:
+            return registry.check(kind, raw)
+        except ValueError as exc:
+            raise self.fail(f"{where}.{key}", str(exc)) from None
 
     def array(
         self, node: dict, key: str, where: str, shape: tuple[int, ...], default: Any = None
@@ -230,6 +274,10 @@ def _parse(doc: dict, path: Path) -> VesselSpec:
             r_b=r.array(rs, "r_b", "restoring", (3,)),
         )
 
+    coriolis = r.get(doc, "coriolis", "", required=False) or "full"
+    if coriolis not in CORIOLIS_FORMS:
+        raise r.fail("coriolis", f"must be one of {', '.join(CORIOLIS_FORMS)}, got {coriolis!r}")
+
     th = r.get(doc, "thrusters", "")
     law = r.get(th, "law", "thrusters")
     if law not in ("linear", "quadratic"):
@@ -243,9 +291,9 @@ def _parse(doc: dict, path: Path) -> VesselSpec:
         names.append(str(r.get(unit, "name", where)))
         pos.append(r.array(unit, "position", where, (3,)))
         dirs.append(r.array(unit, "direction", where, (3,)))
-        kf.append(r.number(unit, "k_forward", where, positive=True))
-        kr.append(r.number(unit, "k_reverse", where, positive=True))
-        nmax.append(r.number(unit, "n_max", where, positive=True))
+        kf.append(r.number(unit, "k_forward", where, positive=True, units=K_UNITS[law]))
+        kr.append(r.number(unit, "k_reverse", where, positive=True, units=K_UNITS[law]))
+        nmax.append(r.number(unit, "n_max", where, positive=True, units=SPEED_UNITS))
         tc.append(r.number(unit, "time_constant", where, positive=True))
     thrusters = ThrusterSpec(
         names=names,
@@ -287,6 +335,8 @@ def _parse(doc: dict, path: Path) -> VesselSpec:
         if np.any(sensors[-1].noise_std < 0):
             raise r.fail(f"{where}.noise_std", "must be non-negative")
 
+    gnc = _parse_gnc(r, doc, thrusters.count)
+
     return VesselSpec(
         name=name,
         title=str(doc.get("title", name)),
@@ -301,4 +351,37 @@ def _parse(doc: dict, path: Path) -> VesselSpec:
         source_file=str(path),
         provenance=r.provenance,
         extra=_unwrap(r, dict(doc.get("extra", {}) or {}), "extra"),
+        gnc=gnc,
+        coriolis=coriolis,
+    )
+
+
+GNC_FIELDS = ("controller", "allocator", "guidance", "camera_thrusters", "tuning")
+
+
+def _parse_gnc(r: _Reader, doc: dict, n_thrusters: int) -> GncSpec:
+    """The ``gnc`` section: variant names (required: controller, allocator) and their data."""
+    g = r.get(doc, "gnc", "")
+    if not isinstance(g, dict):
+        raise r.fail("gnc", "expected a mapping (controller, allocator, guidance, camera_thrusters, tuning)")
+    unknown = sorted(set(g) - set(GNC_FIELDS))
+    if unknown:
+        raise r.fail("gnc", f"unknown field(s) {', '.join(unknown)}; known: {', '.join(GNC_FIELDS)}")
+    controller = r.name(g, "controller", "gnc", "controller")
+    camera = r.get(g, "camera_thrusters", "gnc", required=False) or []
+    if not isinstance(camera, list) or any(
+            isinstance(i, bool) or not isinstance(i, int) or not 1 <= i <= n_thrusters for i in camera):
+        raise r.fail("gnc.camera_thrusters", f"expected a list of thruster numbers 1..{n_thrusters}")
+    tuning = _unwrap(r, dict(g.get("tuning", {}) or {}), "gnc.tuning")
+    allowed = registry.CONTROLLERS[controller].tuning
+    bad = sorted(set(tuning) - set(allowed))
+    if bad:
+        raise r.fail("gnc.tuning", f"unknown key(s) {', '.join(bad)} for controller '{controller}'; "
+                     f"known: {', '.join(allowed)}")
+    return GncSpec(
+        controller=controller,
+        allocator=r.name(g, "allocator", "gnc", "allocator"),
+        guidance=r.name(g, "guidance", "gnc", "guidance", default="none"),
+        camera_thrusters=[int(i) - 1 for i in camera],
+        tuning=tuning,
     )
