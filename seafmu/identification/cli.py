@@ -13,7 +13,16 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from seafmu.identification.trial import BASELINES, Trial, TrialError, csv_trial, load_trial
+import numpy as np
+
+from seafmu.identification.trial import (
+    BASELINES,
+    Trial,
+    TrialError,
+    check_vessel,
+    csv_trial,
+    load_trial,
+)
 
 if TYPE_CHECKING:  # the fitting stack (scipy) loads only when a command runs
     from seafmu.identification.fitting import FitResult
@@ -42,8 +51,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
 
 
 def load(args: argparse.Namespace) -> Trial:
-    """The trial named on the command line, with the --vessel and --baseline overrides applied."""
+    """The trial named on the command line, with the --vessel and --baseline overrides applied.
+
+    Checked before any fit: the --write-vessel folder exists (it is never created), and a vessel
+    named for a 1-2 DOF trial has the trial's DOF and a plausible mass (a maneuver log is checked
+    against its vessel column by column when it is read).
+    """
     path = Path(args.trial)
+    if args.write_vessel:
+        out = Path(args.write_vessel)
+        if not out.parent.is_dir():
+            raise TrialError(f"--write-vessel {out}: the folder {out.parent} does not exist "
+                             "(it is not created)")
+        if out.is_dir():
+            raise TrialError(f"--write-vessel {out}: is a folder; give the vessel file to write")
     if path.suffix.lower() == ".csv":
         vessel = args.vessel or _vessel_from_summary(path)
         if not vessel:
@@ -61,7 +82,23 @@ def load(args: argparse.Namespace) -> Trial:
             raise TrialError(f"--baseline {args.baseline}: not one of {', '.join(allowed)} "
                              f"for a {trial.kind} trial")
         trial.baseline = args.baseline
+    if trial.kind != "maneuver" and trial.vessel and (args.vessel or args.write_vessel):
+        from components.vessel_spec import load_vessel
+
+        check_vessel(trial, load_vessel(trial.vessel))
     return trial
+
+
+def one_line(msg: str) -> str:
+    """A multi-line error (one problem per line, each naming the file) as one line: the file
+    named once, the problems joined by '; '."""
+    lines = [ln.strip() for ln in msg.splitlines() if ln.strip()]
+    if len(lines) <= 1:
+        return lines[0] if lines else msg
+    first = lines[0]
+    head = first[: first.index(": ") + 2] if ": " in first else ""
+    rest = [ln[len(head):] if head and ln.startswith(head) else ln for ln in lines[1:]]
+    return "; ".join([first, *rest])
 
 
 def _vessel_from_summary(csv_path: Path) -> str | None:
@@ -88,6 +125,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
 
 def _run(args: argparse.Namespace, diagnose: bool) -> int:
     """Shared body of both commands: load, fit, report, optional write-back and replay, print."""
+    from components.vessel_spec import VesselFileError
     from seafmu.identification import diagnosis as dg
     from seafmu.identification import report as rp
 
@@ -98,8 +136,12 @@ def _run(args: argparse.Namespace, diagnose: bool) -> int:
             result: dg.Identification | dg.Diagnosis = dg.diagnose(trial, effects)
         else:
             result = dg.identify(trial)
-    except TrialError as exc:
-        print(f"seafmu: error: {exc}", file=sys.stderr)
+    except (TrialError, VesselFileError) as exc:
+        print(f"seafmu: error: {one_line(str(exc))}", file=sys.stderr)
+        return 2
+    except (ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:  # the data defeated the fit
+        print(f"seafmu: error: {args.trial}: cannot be fitted ({type(exc).__name__}: "
+              f"{one_line(str(exc))[:200]})", file=sys.stderr)
         return 2
     out = _out(args, trial)
     if isinstance(result, dg.Diagnosis):
@@ -137,8 +179,6 @@ def close_loop(trial: Trial, fit: FitResult, out_path: Path, method: str,
 
     Returns {"json": keys for the JSON document, "lines": lines for the summary and the report}.
     """
-    import numpy as np
-
     from seafmu.identification.diagnosis import write_vessel_file
     from seafmu.identification.replay import Replay, replay
 
@@ -170,8 +210,8 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         return int(args.fn(args))
-    except (VesselFileError, OSError) as exc:
-        print(f"seafmu: error: {exc}", file=sys.stderr)
+    except (VesselFileError, OSError, TrialError) as exc:
+        print(f"seafmu: error: {one_line(str(exc))}", file=sys.stderr)
         return 2
 
 

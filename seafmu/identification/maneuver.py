@@ -19,9 +19,10 @@ Two methods, as the identification brief asks:
   span fewer DOFs than the model (the AMV's two screws: tau_Y is proportional to tau_N, so
   M^-1 cannot be separated from its action on tau in the acceleration form).
 - ``"output_error"`` — simulate the model against the measured nu and adjust the diagonal of
-  D_L and D_Q (optionally the added-mass diagonal) with ``scipy.optimize.least_squares``,
-  started from the LS estimate. Differentiating noisy data biases equation error; output error
-  only ever compares simulated with measured velocities, so white sensor noise does not bias it.
+  D_L and D_Q (optionally the added-mass diagonal) by MINPACK's Levenberg-Marquardt on the
+  Jacobian's block structure (``arrowlm``: linear in the log length), started from the LS
+  estimate. Differentiating noisy data biases equation error; output error only ever compares
+  simulated with measured velocities, so white sensor noise does not bias it.
 
 Every fit reports in ``FitResult`` (``fitting.py``): parameters with 95 % intervals, correlation
 and non-identifiable pairs, NRMSE of simulated nu on the fitted part and on the held-out last
@@ -40,30 +41,32 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy.optimize import least_squares
 from scipy.signal import savgol_filter
 
 from components.allocation import allocation_matrix
 from components.plant import PlantBlock
-from components.thrusters import thrust_to_speed, thruster_matrix
+from components.thrusters import max_thrust, thrust_to_speed, thruster_matrix
 from components.vessel_model import VesselModel
 from components.vessel_spec import ETA_NAMES, NU_NAMES, TAU_NAMES, VesselSpec
-from seafmu.identification import fitting
+from seafmu.identification import arrowlm, fitting
 from seafmu.identification.fitting import FitResult
-
-try:  # the trial module defines the project-wide error type for unusable trial data
-    from seafmu.identification.trial import TrialError
-except ImportError:  # pragma: no cover - only while the trial module does not exist
-
-    class TrialError(ValueError):  # type: ignore[no-redef]
-        """A trial that cannot be fitted (one line per problem)."""
-
+from seafmu.identification.trial import (
+    GAP_FACTOR,
+    MAX_ABS,
+    TrialError,
+    constant,
+    echo_cell,
+    is_number,
+    read_text,
+)
 
 METHODS = ("ls", "output_error")
 CORIOLIS = ("auto", "vessel", "iterate", "joint")
 DERIVATIVES = ("auto", "savgol", "central", "measured")
 # Fewest samples per regressor of one DOF row (3 d regressors): below this the LS is a guess.
 SAMPLES_PER_REGRESSOR = 10
+# The motion each velocity component stands for, in error messages.
+DOF_WORDS = {"u": "surge", "v": "sway", "w": "heave", "p": "roll", "q": "pitch", "r": "yaw"}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -114,16 +117,24 @@ class ManeuverData:
 
 
 def _read_table(path: Path) -> tuple[list[str], np.ndarray]:
-    """Header and a float array of a CSV; '#' lines are provenance comments; empty cells -> NaN."""
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise TrialError(f"{path}: cannot read ({exc.strerror})") from None
+    """Header and a float array of a CSV; '#' lines are provenance comments; empty cells -> NaN.
+
+    Nothing from the file appears in an error unless it looks like a data table (a header of at
+    least two names and a first data row of as many cells with a number among them).
+    """
+    text = read_text(Path(path), "log")
     lines = [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
     if not lines:
         raise TrialError(f"{path}: empty file (no header line)")
-    rows = list(csv.reader(lines))
+    try:
+        rows = list(csv.reader(lines))
+    except csv.Error as exc:
+        raise TrialError(f"{path}: not a CSV file ({exc})") from None
     header = [h.strip() for h in rows[0]]
+    if len(header) < 2 or (len(rows) > 1 and (len(rows[1]) != len(header)
+                                              or not any(is_number(c) for c in rows[1]))):
+        raise TrialError(f"{path}: not a CSV data table (expected optional '#' lines, a header row of "
+                         "column names, then rows of numbers separated by commas)")
     data = np.full((len(rows) - 1, len(header)), np.nan)
     for r, row in enumerate(rows[1:]):
         if len(row) != len(header):
@@ -135,7 +146,7 @@ def _read_table(path: Path) -> tuple[list[str], np.ndarray]:
                     data[r, c] = float(cell)
                 except ValueError:
                     raise TrialError(
-                        f"{path}: data row {r + 1}, column '{header[c]}': not a number ({cell!r})"
+                        f"{path}: data row {r + 1}, column '{header[c]}': not a number ({echo_cell(cell)})"
                     ) from None
     return header, data
 
@@ -205,6 +216,9 @@ def load_maneuver_csv(path: Path, vessel: VesselSpec, columns: dict[str, str] | 
     nu_dot_idx = [find(f"{n}_dot", [f"plant.{n}_dot", f"{n}_dot"], required=False) for n in NU_NAMES[d]]
     have_nu_dot = all(i is not None for i in nu_dot_idx)
 
+    mismatch = _vessel_problems(index, columns, vessel)
+    if mismatch:  # explains any missing columns: reported alone
+        raise TrialError("\n".join(f"{path}: {p}" for p in mismatch))
     used = [i for i in [i_t, *i_eta, *i_nu, *tau_cols] if i is not None]
     if have_nu_dot:
         used += [i for i in nu_dot_idx if i is not None]
@@ -212,7 +226,7 @@ def load_maneuver_csv(path: Path, vessel: VesselSpec, columns: dict[str, str] | 
         bad = np.flatnonzero(~np.isfinite(table[:, i]))
         if bad.size:
             problems.append(
-                f"column '{header[i]}' has {bad.size} empty/NaN value(s), first at data row {bad[0] + 1}"
+                f"column '{header[i]}' has {bad.size} empty/NaN/inf value(s), first at data row {bad[0] + 1}"
             )
     min_n = SAMPLES_PER_REGRESSOR * 3 * d
     if table.shape[0] < min_n:
@@ -226,13 +240,28 @@ def load_maneuver_csv(path: Path, vessel: VesselSpec, columns: dict[str, str] | 
             problems.append(
                 f"time is not strictly increasing at data row {k + 2} (t = {t[k + 1]:g} after {t[k]:g})"
             )
+        elif np.all(np.isfinite(dt)):
+            problems += _gap_problems(t, "data row ", 2)
     if problems:
         raise TrialError("\n".join(f"{path}: {p}" for p in problems))
 
     for key, factor in (factors or {}).items():  # to SI, before any column is combined
         if key in found:
             table[:, found[key]] *= factor
+    for i in used:  # finite, but too large to square (e.g. 1e308)
+        big = np.flatnonzero(~(np.abs(table[:, i]) <= MAX_ABS))
+        if big.size:
+            problems.append(f"column '{header[i]}' is {table[big[0], i]:.6g} at data row {big[0] + 1}: "
+                            f"out of range (|value| > {MAX_ABS:g} in SI units; squares in the fit would "
+                            "overflow)")
+    if problems:
+        raise TrialError("\n".join(f"{path}: {p}" for p in problems))
     tau_raw = table[:, tau_cols]
+    problems += _excitation_problems(table[:, i_nu], tau_raw, [header[i] for i in i_nu],
+                                     [header[i] for i in tau_cols], NU_NAMES[d])
+    problems += _thrust_problems(tau_raw, [header[i] for i in tau_cols], vessel, tau_cols is i_thr)
+    if problems:
+        raise TrialError("\n".join(f"{path}: {p}" for p in problems))
     tau = tau_raw @ B.T if tau_cols is i_thr else tau_raw
     return ManeuverData(
         t=table[:, i_t],
@@ -243,6 +272,99 @@ def load_maneuver_csv(path: Path, vessel: VesselSpec, columns: dict[str, str] | 
         source=f"{path} [{tau_note}]",
         nu_dot=table[:, nu_dot_idx] if have_nu_dot else None,
     )
+
+
+_SIX_ONLY = ("down", "roll", "pitch", "w", "p", "q")  # eta/nu names a 3-DOF vessel lacks
+_THRUSTER_FAMILIES = ("plant.thrust_{}", "thrust_{}", "plant.n_{}", "n_{}", "allocator.n_cmd_{}", "n_cmd_{}")
+
+
+def _vessel_problems(index: dict[str, int], columns: dict[str, str], vessel: VesselSpec) -> list[str]:
+    """Signs that the log was recorded on another vessel: other DOFs, more thrusters, or column
+    roles this vessel does not have. One line each; empty when the log fits the vessel."""
+    d, m, name = vessel.dof, vessel.thrusters.count, vessel.name
+    hint = "a log of another vessel? (name its vessel with --vessel or the trial's 'vessel')"
+    out = []
+    six = set(_SIX_ONLY) | {"tau_Z", "tau_K", "tau_M"} | {f"{n}_dot" for n in ("w", "p", "q")}
+    for role in columns:
+        if d == 3 and role in six:
+            out.append(f"columns.{role}: vessel '{name}' has 3 DOF (no {role}): {hint}")
+        elif role.startswith("thrust_") and role[7:].isdigit() and int(role[7:]) > m:
+            out.append(f"columns.{role}: vessel '{name}' has {m} thruster(s): {hint}")
+    if d == 3:
+        for prefix in ("plant.", ""):
+            hits = [prefix + n for n in _SIX_ONLY if prefix + n in index]
+            if len(hits) == len(_SIX_ONLY):
+                out.append(f"the log has 6-DOF columns ({', '.join(hits)}), vessel '{name}' has 3 DOF: "
+                           f"{hint}")
+                break
+    else:
+        mapped = set(columns)
+        six_found = [n for n in _SIX_ONLY if n in mapped or f"plant.{n}" in index or n in index]
+        three_found = [n for n in ("north", "east", "yaw", "u", "v", "r")
+                       if n in mapped or f"plant.{n}" in index or n in index]
+        if not six_found and len(three_found) == 6:
+            out.append(f"the log has 3-DOF columns only (north, east, yaw, u, v, r), vessel '{name}' has "
+                       f"6 DOF: {hint}")
+    for family in _THRUSTER_FAMILIES:
+        k = m
+        while family.format(k + 1) in index:
+            k += 1
+        if k > m:
+            out.append(f"the log has columns for {k} thrusters ({family.format(1)} ... {family.format(k)}), "
+                       f"vessel '{name}' has {m}: {hint}")
+            break
+    return out
+
+
+def _gap_problems(t: np.ndarray, unit: str, offset: int) -> list[str]:
+    """A time step over GAP_FACTOR median sample intervals: samples are missing (one line)."""
+    dt = np.diff(t)
+    if dt.size < 2:
+        return []
+    med = float(np.median(dt))
+    gaps = np.flatnonzero(dt > GAP_FACTOR * med)
+    if not gaps.size:
+        return []
+    k = int(gaps[0])
+    return [f"time jumps from {t[k]:g} s to {t[k + 1]:g} s at {unit}{k + offset} ({dt[k] / med:.3g} sample "
+            f"intervals of {med:g} s; {gaps.size} gap(s) over {GAP_FACTOR:g} intervals): samples are missing "
+            "there; split the log into parts without gaps"]
+
+
+def _excitation_problems(nu: np.ndarray, tau: np.ndarray, nu_cols: list[str], tau_cols: list[str],
+                         nu_names: tuple[str, ...]) -> list[str]:
+    """Columns that never change: a DOF that does not move, or forces that never vary, leave
+    nothing to identify (instead of a singular matrix later)."""
+    out = []
+    still = [j for j in range(nu.shape[1]) if constant(nu[:, j])]
+    for j in still:
+        out.append(f"column '{nu_cols[j]}' ({nu_names[j]}) is constant ({nu[0, j]:g} throughout): "
+                   f"{DOF_WORDS.get(nu_names[j], nu_names[j])} is not excited, its damping cannot be "
+                   "identified")
+    if tau.shape[1] and all(constant(tau[:, j]) for j in range(tau.shape[1])):
+        out.append(f"the forces ({', '.join(tau_cols)}) are constant: nothing excites the vessel")
+    if len(still) == nu.shape[1] and out:
+        out = [f"no motion: every velocity column ({', '.join(nu_cols)}) is constant, nothing to identify"]
+    return out
+
+
+def _thrust_problems(tau_raw: np.ndarray, cols: list[str], vessel: VesselSpec,
+                     per_thruster: bool) -> list[str]:
+    """Forces far beyond what the vessel's thrusters can give (3x): another vessel or a unit error."""
+    t_min, t_max = max_thrust(vessel.thrusters)
+    cap_t = np.maximum(np.abs(t_min), np.abs(t_max))
+    if per_thruster:
+        caps = cap_t
+    else:
+        B = thruster_matrix(vessel.thrusters, vessel.dof)
+        caps = np.abs(B) @ cap_t
+    out = []
+    for j, c in enumerate(cols):
+        peak = float(np.max(np.abs(tau_raw[:, j]))) if tau_raw.shape[0] else 0.0
+        if caps[j] > 0 and peak > 3.0 * caps[j]:
+            out.append(f"column '{c}' reaches {peak:.4g}, over 3x what vessel '{vessel.name}' can give "
+                       f"({caps[j]:.4g}): a log of another vessel, or a unit error?")
+    return out
 
 
 # ---------------------------------------------------------------------------------------------
@@ -624,25 +746,27 @@ def _ls_joint(prep: _Prepared, rows: np.ndarray, g: np.ndarray, damping: str) ->
     m_idx = _names("M", d, "upper")
     l_idx = _names("D_L", d, entries)
     q_idx = _names("D_Q", d, entries)
-    cols = []
-    for _, i, j in m_idx:
+    P = len(m_idx) + len(l_idx) + len(q_idx)
+    X = np.zeros((n, d, P))  # regressors, filled in place (no list of columns beside it)
+    for k, (_, i, j) in enumerate(m_idx):
         E = np.zeros((d, d))
         E[i, j] = E[j, i] = 1.0
-        cols.append(nud @ E.T + coriolis_force(E, nu))
+        X[:, :, k] = nud @ E.T + coriolis_force(E, nu)
     nq = np.abs(nu) * nu
+    k = len(m_idx)
     for src, idx in ((nu, l_idx), (nq, q_idx)):
         for _, i, j in idx:
-            c = np.zeros((n, d))
-            c[:, i] = src[:, j]
-            cols.append(c)
-    X = np.stack(cols, axis=-1)  # (n, d, P)
-    P = X.shape[-1]
-    Xr = [np.ascontiguousarray(X[:, i, :]) for i in range(d)]  # one regression block per DOF row
+            X[:, i, k] = src[:, j]
+            k += 1
+    # per-DOF Gram matrices once (the weights only scale them): few, large BLAS calls, which a
+    # busy shared machine serves far better than many
+    grams = [X[:, i, :].T @ X[:, i, :] for i in range(d)]
+    cross = [X[:, i, :].T @ y[:, i] for i in range(d)]
 
     def solve(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Weighted normal equations (column-scaled): theta and (X^T W X)^-1."""
-        A = sum(w[i] ** 2 * (Xr[i].T @ Xr[i]) for i in range(d))
-        b = sum(w[i] ** 2 * (Xr[i].T @ y[:, i]) for i in range(d))
+        A = sum(w[i] ** 2 * grams[i] for i in range(d))
+        b = sum(w[i] ** 2 * cross[i] for i in range(d))
         cs = np.sqrt(np.maximum(np.diag(A), 1e-300))
         G = np.linalg.pinv(A / np.outer(cs, cs), hermitian=True) / np.outer(cs, cs)
         return G @ b, G
@@ -895,16 +1019,6 @@ def _autocorr_inflation(residual: np.ndarray, max_lag: int = 2000) -> float:
     return float(np.mean(factors)) if factors else 1.0
 
 
-def _covariance(J: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """s^2 (J^T J)^-1 through the (column-scaled) normal equations — the same as
-    ``fitting.covariance_from_jacobian`` but without an SVD of the tall Jacobian."""
-    n, p = J.shape
-    A = J.T @ J
-    cs = np.sqrt(np.maximum(np.diag(A), 1e-300))
-    inv = np.linalg.pinv(A / np.outer(cs, cs), hermitian=True) / np.outer(cs, cs)
-    return float(r @ r) / max(n - p, 1) * inv
-
-
 def _whiteness(residual: np.ndarray, names: list[str]) -> dict[str, Any]:
     per = {n: fitting.whiteness_test(residual[:, j]) for j, n in enumerate(names)}
     finite = [v for v in per.values() if v["lags"] > 0]
@@ -1037,10 +1151,18 @@ def identify_maneuver(
             f"{data.source}: only {data.n} samples; a {d}-DOF maneuver fit needs at least {min_n}"
         )
     for name in ("t", "eta", "nu", "tau"):
-        if not np.all(np.isfinite(getattr(data, name))):
+        arr = getattr(data, name)
+        if not np.all(np.isfinite(arr)):
             raise TrialError(f"{data.source}: {name} contains NaN or inf")
+        if np.any(np.abs(arr) > MAX_ABS):
+            raise TrialError(f"{data.source}: {name} has values out of range (|value| > {MAX_ABS:g}; "
+                             "squares in the fit would overflow)")
     if np.any(np.diff(data.t) <= 0):
         raise TrialError(f"{data.source}: time is not strictly increasing")
+    problems = _gap_problems(data.t, "sample ", 2) + _excitation_problems(
+        data.nu, data.tau, list(NU_NAMES[d]), [f"tau_{n}" for n in TAU_NAMES[d]], NU_NAMES[d])
+    if problems:
+        raise TrialError("\n".join(f"{data.source}: {p}" for p in problems))
 
     warnings: list[str] = []
     data = _uniform(data, warnings)
@@ -1259,7 +1381,7 @@ def _output_error(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | None, 
     x_scale = np.maximum(np.sqrt(np.mean(x0_meas**2, axis=0)), 1e-6)
     npar = p0.size
     mask = setup.mask
-    rows_seg = np.repeat(np.repeat(np.arange(S), mask.sum(axis=1)), d)  # segment of each residual
+    maskd = np.broadcast_to(mask[:, :, None], (*mask.shape, d))  # residuals that count
 
     def mats(P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         K = P.shape[0]
@@ -1282,27 +1404,23 @@ def _output_error(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | None, 
         return {}
 
     def residuals(Z: np.ndarray) -> np.ndarray:
-        """Flat residual vectors for several scaled parameter sets (K, N)."""
+        """Residuals per segment (K, S, R) for several scaled parameter sets, R = (L + 1) d rows
+        per segment, zero where no sample is compared (the segment start, past the log's end)."""
         P = Z[:, :npar] * scales
         X0 = Z[:, npar:].reshape(-1, S, nx) * x_scale
         r = _sim_residual(setup, *mats(P), X0, **terms(P))
-        flat = r[:, mask]  # (K, N, d)
-        flat = np.where(np.isfinite(flat), flat, 1e3)
-        return flat.reshape(P.shape[0], -1)
-
-    cache: dict[bytes, np.ndarray] = {}
+        r = np.where(maskd, np.where(np.isfinite(r), r, 1e3), 0.0)
+        return r.reshape(P.shape[0], S, -1)
 
     def fun(z: np.ndarray) -> np.ndarray:
-        key = z.tobytes()
-        if key not in cache:
-            cache.clear()
-            cache[key] = residuals(z[None])[0]
-        return cache[key]
+        return residuals(z[None])[0]
 
-    def jac(z: np.ndarray) -> np.ndarray:
+    def jac(z: np.ndarray) -> arrowlm.ArrowJacobian:
         """Finite differences in one batched simulation: one run per model parameter, and one
         per state component (it perturbs that component in every segment at once; segments
-        are independent, so each residual row belongs to exactly one segment's column)."""
+        are independent, so segment s's rows give its own state's column). Kept by blocks
+        (arrowlm): a dense matrix would have one column per segment and state, rows x columns
+        growing as the square of the log length."""
         step = 1e-6 * np.maximum(1.0, np.abs(z))
         Z = np.repeat(z[None], 1 + npar + nx, axis=0)
         Z[1 + np.arange(npar), np.arange(npar)] += step[:npar]
@@ -1310,12 +1428,9 @@ def _output_error(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | None, 
         for j in range(nx):
             Z[1 + npar + j, npar + j :: nx] += hx
         R = residuals(Z)
-        Jm = np.zeros((R.shape[1], z.size))
-        Jm[:, :npar] = ((R[1 : 1 + npar] - R[0]) / step[:npar, None]).T
-        for j in range(nx):
-            dcol = (R[1 + npar + j] - R[0]) / hx
-            Jm[np.arange(R.shape[1]), npar + rows_seg * nx + j] = dcol
-        return Jm
+        Jp = ((R[1 : 1 + npar] - R[0]) / step[:npar, None, None]).transpose(1, 2, 0)
+        Jx = ((R[1 + npar :] - R[0]) / hx).transpose(1, 2, 0)
+        return arrowlm.ArrowJacobian(np.ascontiguousarray(Jp), np.ascontiguousarray(Jx))
 
     # start from the LS diagonal, unless the vessel file's values simulate the trial better
     # (a poorly exciting log gives an LS model that may not even be stable)
@@ -1323,22 +1438,22 @@ def _output_error(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | None, 
                             + ([np.diag(plant["M"])] if added_mass else []) + [np.zeros(len(enames))])
     x0z = (x0_meas / x_scale).ravel()
     z_ls, z_file = np.concatenate([p0 / scales, x0z]), np.concatenate([p_file / scales, x0z])
-    costs = np.sum(residuals(np.vstack([z_ls, z_file])) ** 2, axis=1)
+    costs = np.sum(residuals(np.vstack([z_ls, z_file])) ** 2, axis=(1, 2))
     z0 = z_ls if costs[0] <= costs[1] else z_file
     first = "given start" if start else "LS estimate"
     start_from = first if costs[0] <= costs[1] else f"vessel file ({first} simulated worse)"
     p0 = z0[:npar] * scales
-    # MINPACK LM: its own QR, not an SVD of the tall Jacobian through a multi-threaded BLAS, which
-    # is 40x slower than single-threaded on a busy 2-core machine
-    sol = least_squares(fun, z0, jac=jac, method="lm", max_nfev=max_nfev, x_scale=1.0)
+    # MINPACK's Levenberg-Marquardt (as least_squares(method="lm", x_scale=1.0)) on the block
+    # structure: time and memory linear in the log length (arrowlm)
+    sol = arrowlm.levenberg_marquardt(fun, jac, z0, max_nfev=max_nfev)
     p = sol.x[:npar] * scales
     if not sol.success:
         warnings.append(f"output-error optimiser stopped: {sol.message}")
-    J = sol.jac[:, :npar] / scales[None, :]
-    J_full = np.hstack([J, sol.jac[:, npar:]])
-    r = sol.fun
+    r = sol.fun[maskd.reshape(S, -1)]  # the compared residuals, in time order
     infl = _autocorr_inflation(r.reshape(-1, d))
-    cov = _covariance(J_full, r)[:npar, :npar] * infl
+    # s^2 (J^T J)^-1 over model and initial-state parameters (column-scaled pseudo-inverse), model block
+    n_cols = npar + S * nx
+    cov = float(r @ r) / max(r.size - n_cols, 1) * sol.jac.scaled(scales).normal().inverse_pp() * infl
     ci = fitting.confidence_intervals(names, p, cov, r.size)
     corr = fitting.correlation_matrix(cov)
     M, DL, DQ = (a[0] for a in mats(p[None]))

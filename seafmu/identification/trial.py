@@ -8,6 +8,7 @@ because a fit on a misread column is worse than no fit at all.
 
 from __future__ import annotations
 
+import codecs
 import csv
 import math
 from dataclasses import dataclass, field
@@ -242,6 +243,15 @@ def _expected_units(tm: TrialModel, table: str | None) -> dict[str, tuple[tuple[
 
 _OPTIONAL = {"rate", "accel"}
 
+# Why a constant output leaves nothing to fit, per kind (no excitation).
+_STILL = {
+    "static": "the output is the same at every input, nothing to fit",
+    "decay": "nothing decays, no decay to fit",
+    "step": "the output never responds, no response to fit",
+    "decay2": "nothing moves, no oscillation to fit",
+    "pendulum": "the angle never changes, no swing to fit",
+}
+
 # Maneuver column roles (names of load_maneuver_csv) and the SI unit each must convert to.
 _M_POS, _M_ANG = ("north", "east", "down"), ("roll", "pitch", "yaw")
 _M_LIN, _M_ROT = ("u", "v", "w"), ("p", "q", "r")
@@ -279,37 +289,99 @@ def maneuver_factors(trial: Trial) -> dict[str, float]:
     return {role: _unit_si(unit)[1] for role, unit in trial.units.items() if _unit_si(unit)[1] != 1.0}
 
 
-def _read_csv(path: Path) -> tuple[list[str], list[list[str]], list[int], list[str]]:
-    """Header, rows, the file line number of each row, and the leading '#' comment lines."""
+# Largest magnitude accepted in a data column (after conversion to SI). No measured quantity
+# comes near it, and squares and sums of squares over a long log stay far from overflow (1e308
+# is a valid float whose square is not).
+MAX_ABS = 1e15
+# A time step longer than this many median sample intervals is a gap in the record: samples are
+# missing there, and no fit integrates across it (the run must be split into separate files).
+GAP_FACTOR = 5.0
+TINY = 1e-100  # a column no larger than this is numerically zero (no motion)
+_MAX_ECHO = 24  # longest cell text quoted in an error (the file is a valid table by then)
+
+
+def read_text(path: Path, what: str = "file") -> str:
+    """A text file's content, or one line saying why not (unreadable, not UTF-8, binary).
+
+    Never quotes the file: a wrong path may point at anything.
+    """
     try:
-        text = path.read_text()
+        raw = path.read_bytes()
     except OSError as exc:
         raise TrialError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    if raw.startswith(codecs.BOM_UTF8):
+        raw = raw[len(codecs.BOM_UTF8):]
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = raw.count(b"\n", 0, exc.start) + 1
+        raise TrialError(f"{path}: not UTF-8 text (byte 0x{raw[exc.start]:02x} on line {line}): "
+                         f"save the {what} as UTF-8 or ASCII") from None
+    nul = text.find("\x00")
+    if nul >= 0:
+        raise TrialError(f"{path}: not a text file (NUL byte on line {text.count(chr(10), 0, nul) + 1})")
+    return text
+
+
+def is_number(cell: str) -> bool:
+    try:
+        float(cell)
+    except ValueError:
+        return False
+    return True
+
+
+def echo_cell(cell: str) -> str:
+    """A cell quoted in an error, shortened."""
+    cell = cell if len(cell) <= _MAX_ECHO else cell[: _MAX_ECHO - 3] + "..."
+    return repr(cell)
+
+
+def _names(header: list[str]) -> str:
+    """The header's column names for an error, shortened."""
+    shown = [h if len(h) <= 40 else h[:37] + "..." for h in header[:20]]
+    return ", ".join(shown) + (f", ... ({len(header)} columns)" if len(header) > 20 else "")
+
+
+def read_table(path: Path) -> tuple[list[str], list[list[str]], list[int], list[str]]:
+    """Header, rows, the file line number of each row, and the leading '#' comment lines of a CSV.
+
+    The file must look like a data table — a header of at least two column names, then a first
+    data row with as many cells, at least one of them a number — before anything from it (column
+    names, cells) appears in an error message; anything else is one line quoting nothing.
+    """
+    text = read_text(path, "CSV file")
     comments: list[str] = []
     header: list[str] | None = None
     rows: list[list[str]] = []
     lines: list[int] = []
-    for lineno, row in enumerate(csv.reader(text.splitlines()), start=1):
-        if not row or all(not c.strip() for c in row):
-            continue
-        if row[0].lstrip().startswith("#"):
+    try:
+        for lineno, row in enumerate(csv.reader(text.splitlines()), start=1):
+            if not row or all(not c.strip() for c in row):
+                continue
+            if row[0].lstrip().startswith("#"):
+                if header is None:
+                    comments.append(",".join(row).lstrip("# ").rstrip())
+                continue
             if header is None:
-                comments.append(",".join(row).lstrip("# ").rstrip())
-            continue
-        if header is None:
-            header = [c.strip() for c in row]
-            continue
-        rows.append(row)
-        lines.append(lineno)
+                header = [c.strip() for c in row]
+                continue
+            rows.append(row)
+            lines.append(lineno)
+    except csv.Error as exc:
+        raise TrialError(f"{path}: not a CSV file ({exc})") from None
     if header is None:
         raise TrialError(f"{path}: no header row (expected column names after the '#' comment lines)")
+    if len(header) < 2 or (rows and (len(rows[0]) != len(header) or not any(is_number(c) for c in rows[0]))):
+        raise TrialError(f"{path}: not a CSV data table (expected optional '#' lines, a header row of "
+                         "column names, then rows of numbers separated by commas)")
     return header, rows, lines, comments
 
 
 def _column(path: Path, header: list[str], rows: list[list[str]], lines: list[int], name: str,
             role: str) -> np.ndarray:
     if name not in header:
-        raise TrialError(f"{path}: column '{name}' ({role}) not found; the file has: {', '.join(header)}")
+        raise TrialError(f"{path}: column '{name}' ({role}) not found; the file has: {_names(header)}")
     j = header.index(name)
     out = np.empty(len(rows))
     for i, row in enumerate(rows):
@@ -317,26 +389,90 @@ def _column(path: Path, header: list[str], rows: list[list[str]], lines: list[in
         try:
             val = float(cell)
         except ValueError:
-            raise TrialError(f"{path}: line {lines[i]}: column '{name}' is not a number ({cell!r})") from None
+            raise TrialError(f"{path}: line {lines[i]}: column '{name}' is not a number "
+                             f"({echo_cell(cell)})") from None
         if not math.isfinite(val):
-            raise TrialError(f"{path}: line {lines[i]}: column '{name}' is {cell} (NaN/inf not allowed)")
+            raise TrialError(f"{path}: line {lines[i]}: column '{name}' is {echo_cell(cell)[1:-1]} "
+                             f"(NaN/inf not allowed)")
         out[i] = val
     return out
 
 
-def _check_time(path: Path, t: np.ndarray, lines: list[int], name: str) -> None:
+def check_values(path: Path | str, name: str, x: np.ndarray, lines: list[int] | None = None) -> None:
+    """Values too large to fit (SI units): one line naming the first."""
+    big = np.flatnonzero(~(np.abs(x) <= MAX_ABS))
+    if big.size:
+        i = int(big[0])
+        where = f"line {lines[i]}: " if lines is not None else f"sample {i + 1}: "
+        raise TrialError(f"{path}: {where}column '{name}' is {x[i]:.6g}: out of range (|value| > "
+                         f"{MAX_ABS:g} in SI units; squares in the fit would overflow)")
+
+
+def constant(x: np.ndarray) -> bool:
+    """True when a column does not change (to rounding), or is numerically zero (|x| < TINY:
+    squares underflow, as those of MAX_ABS overflow)."""
+    x = np.asarray(x, dtype=float)
+    if x.size == 0:
+        return True
+    top = float(np.max(np.abs(x)))
+    return bool(top < TINY or np.ptp(x) <= 1e-12 * top)
+
+
+def check_time(path: Path | str, t: np.ndarray, lines: list[int] | None, name: str) -> None:
+    """Time must increase strictly and without gaps (GAP_FACTOR median sample intervals)."""
+
+    def at(i: int) -> str:
+        return f"line {lines[i]}: " if lines is not None else f"sample {i + 1}: "
+
     d = np.diff(t)
     if d.size and np.any(d <= 0):
         i = int(np.argmax(d <= 0))
         what = "repeats" if d[i] == 0 else "goes backwards to"
-        raise TrialError(f"{path}: line {lines[i + 1]}: time column '{name}' {what} {t[i + 1]:g} s "
+        raise TrialError(f"{path}: {at(i + 1)}time column '{name}' {what} {t[i + 1]:g} s "
                          f"(time must increase strictly)")
+    if d.size >= 2:
+        med = float(np.median(d))
+        gaps = np.flatnonzero(d > GAP_FACTOR * med)
+        if gaps.size:
+            i = int(gaps[0])
+            raise TrialError(
+                f"{path}: {at(i + 1)}time column '{name}' jumps from {t[i]:g} s to {t[i + 1]:g} s, "
+                f"{d[i] / med:.3g} sample intervals of {med:g} s ({gaps.size} gap(s) over {GAP_FACTOR:g} "
+                f"intervals): samples are missing there; split the record into runs without gaps")
+
+
+def data_file(trial_path: Path, entry: str, where: str) -> Path:
+    """A data file named in a trial: relative to the trial's folder and inside it.
+
+    Absolute paths, '..' escapes and symbolic links out of the folder are refused (a trial is a
+    document that may come from anyone; only the command line names files anywhere).
+    """
+    base = trial_path.parent
+    rel = Path(entry)
+    if rel.is_absolute() or entry.startswith(("/", "\\")):
+        raise TrialError(f"{trial_path}: {where}: '{entry}' is an absolute path; a trial names its files "
+                         f"relative to its own folder (give a log elsewhere on the command line instead)")
+    full = base / rel
+    try:
+        full.resolve().relative_to(base.resolve())
+    except ValueError:
+        raise TrialError(f"{trial_path}: {where}: '{entry}' lies outside the trial's folder "
+                         f"({base.resolve()}); a trial may only name files in its folder or below") from None
+    return full
 
 
 def load_trial(path: str | Path) -> Trial:
     """Load and validate a trial YAML and its CSV files (paths relative to the YAML)."""
     path = Path(path)
-    doc = read_mapping(path, "trial", TrialError)
+    text = read_text(path, "trial")
+    try:  # syntax first, with a message that names line and column but quotes nothing
+        yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        problem = " ".join(str(getattr(exc, "problem", None) or "syntax error").split())[:80]
+        where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
+        raise TrialError(f"{path}: not valid YAML ({where}{problem})") from None
+    doc = read_mapping(path, "trial", TrialError)  # duplicate keys, top-level mapping
     try:
         tm = TrialModel.model_validate(doc)
     except ValidationError as exc:
@@ -344,13 +480,34 @@ def load_trial(path: str | Path) -> Trial:
     return _resolve(tm, path)
 
 
+def _check_name(path: Path, name: str) -> None:
+    """The trial name becomes the default output folder results/<name>: a plain folder name."""
+    if not name.strip() or name in (".", "..") or any(c in name for c in "/\\") or \
+            any(ord(c) < 32 for c in name):
+        raise TrialError(f"{path}: name: {name!r} is not a plain folder name (it names the output "
+                         f"folder results/<name>: no '/', '\\', '..' or control characters)")
+
+
+def _vessel_ref(path: Path, vessel: str | None) -> str | None:
+    """A trial's vessel: a bundled name, or a vessel YAML inside the trial's folder (made absolute)."""
+    if vessel is None:
+        return None
+    if Path(vessel).suffix in (".yaml", ".yml"):
+        return str(data_file(path, vessel, "vessel"))
+    if any(c in vessel for c in "/\\") or vessel in (".", ".."):
+        raise TrialError(f"{path}: vessel: '{vessel}' is neither a bundled vessel name nor a .yaml file in "
+                         f"the trial's folder")
+    return vessel
+
+
 def _resolve(tm: TrialModel, path: Path) -> Trial:
     def fail(where: str, msg: str) -> TrialError:
         return TrialError(f"{path}: {where}: {msg}")
 
-    base_dir = path.parent
-    files = [base_dir / f for f in tm.files]
-    vfiles = [base_dir / f for f in tm.validation_files]
+    _check_name(path, tm.name)
+    tm.vessel = _vessel_ref(path, tm.vessel)
+    files = [data_file(path, f, f"files[{i}]") for i, f in enumerate(tm.files)]
+    vfiles = [data_file(path, f, f"validation_files[{i}]") for i, f in enumerate(tm.validation_files)]
     for i, f in enumerate(files + vfiles):
         if not f.is_file():
             where = f"files[{i}]" if i < len(files) else f"validation_files[{i - len(files)}]"
@@ -453,16 +610,25 @@ def _resolve(tm: TrialModel, path: Path) -> Trial:
         raise fail("baseline", f"'{baseline}' is not one of {', '.join(allowed_b)} for a {tm.kind} trial")
 
     def read(f: Path) -> Run:
-        header, rows, lines, _ = _read_csv(f)
+        header, rows, lines, _ = read_table(f)
         minimum = MIN_SAMPLES[tm.kind]
         if len(rows) < minimum:
             raise TrialError(f"{f}: {len(rows)} samples; a {tm.kind} trial needs at least {minimum}")
-        data = {role: _column(f, header, rows, lines, colnames[role], role) * factors[role]
-                for role in colnames}
+        data: dict[str, np.ndarray] = {}
+        for role in colnames:
+            data[role] = _column(f, header, rows, lines, colnames[role], role) * factors[role]
+            check_values(f, colnames[role], data[role], lines)
         if "time" in data:
-            _check_time(f, data["time"], lines, colnames["time"])
-        if tm.kind == "static" and np.ptp(data["input"]) == 0:
+            check_time(f, data["time"], lines, colnames["time"])
+        if tm.kind == "static" and constant(data["input"]):
             raise TrialError(f"{f}: column '{colnames['input']}' has one value only: nothing to fit")
+        for role in ("output", "output2"):
+            if role in data and constant(data[role]):
+                raise TrialError(f"{f}: column '{colnames[role]}' ({role}) is constant "
+                                 f"({data[role][0] / factors[role]:g} throughout): {_STILL[tm.kind]}")
+        if tm.kind == "step" and not any(np.any(data[r] != 0) for r in ("input", "input2") if r in data):
+            raise TrialError(f"{f}: column '{colnames['input']}' (input) is zero throughout: the command "
+                             "never acts, no response to identify (a run without input is a decay trial)")
         y = data["output"] if "output2" not in data else np.column_stack([data["output"], data["output2"]])
         u = data.get("input")
         if "input2" in data:
@@ -484,9 +650,40 @@ def _resolve(tm: TrialModel, path: Path) -> Trial:
 
 def _header_provenance(path: Path) -> str:
     try:
-        return " ".join(_read_csv(path)[3][:3])
+        return " ".join(read_table(path)[3][:3])
     except TrialError:
         return ""
+
+
+def check_vessel(trial: Trial, spec: Any) -> None:
+    """A 1-2 DOF trial and the vessel named for it must belong together: the vessel has the
+    trial's DOF, and a stated 'mass' (or 'inertia') lies within a factor 3 of the vessel's
+    rigid-body value or its total with the added mass (trials state either). One line if not."""
+    if trial.kind in ("static", "pendulum", "maneuver") or not trial.dof:
+        return
+    idx = DOF_INDEX.get(spec.dof, {})
+    dofs = ["sway", "yaw"] if trial.dof == "sway_yaw" else [trial.dof]
+    missing = [x for x in dofs if x not in idx]
+    name = getattr(spec, "name", "?")
+    if missing:
+        raise TrialError(f"{trial.source or trial.name}: vessel '{name}' has no {missing[0]} DOF "
+                         f"({spec.dof}-DOF vessel) for this {trial.dof} {trial.kind} trial: a trial of "
+                         "another vessel?")
+    checks = [("mass", dofs[0])] + ([("inertia", "yaw")] if trial.dof == "sway_yaw" else [])
+    for key, dof in checks:
+        if key not in trial.constants:
+            continue
+        i = idx[dof]
+        rb = float(spec.M_RB[i, i])
+        total = rb + float(spec.M_A[i, i])
+        val = trial.constants[key]
+        lo, hi = min(rb, total) / 3.0, max(rb, total) * 3.0
+        if rb > 0 and not lo <= val <= hi:
+            unit = "kg m^2" if dof in ROTATIONAL else "kg"
+            raise TrialError(f"{trial.source or trial.name}: constants.{key} = {val:g} {unit}, but vessel "
+                             f"'{name}' has {rb:g} {unit} rigid-body ({total:g} with added mass) in {dof}: "
+                             "a trial of another vessel? (name its vessel with --vessel or the trial's "
+                             "'vessel')")
 
 
 def csv_trial(path: str | Path, vessel: str) -> Trial:

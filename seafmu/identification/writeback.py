@@ -200,7 +200,9 @@ def write_back(vessel: str | Path, updates: dict[str, float | list], out_path: P
         f"# {', '.join(grouped) or 'no field'}: identified values (each field's source says how);",
         "# everything else is copied unchanged from that file.",
     ]
-    out_path.parent.mkdir(parents=True, exist_ok=True)
+    if not out_path.parent.is_dir():  # never creates folders (a typo must not build a tree)
+        raise VesselFileError(f"write_back: {out_path}: the folder {out_path.parent} does not exist "
+                              "(it is not created)")
     # validate a temporary copy first, so a bad result never replaces anything (out_path may
     # even be the input file)
     tmp = out_path.with_name(f".{out_path.stem}.writeback-tmp.yaml")

@@ -1,0 +1,150 @@
+"""Benchmark: time and peak memory of maneuver identification against the log length.
+
+One long AMV OSF maneuver log is made by seafmu's own plant (``simulate_maneuver``: multisine
+excitation, 0.1 s sampling, the vessel file's sensor noise x1), and its first 10k / 30k / 100k rows
+are identified the way ``seafmu identify LOG.csv --vessel amv_osf`` does it: CSV read, LS baseline
+(smoothing window chosen on the noisy log) and the output-error fit beside it (no report figures).
+Each size runs in a fresh process, so the peak resident memory (``ru_maxrss``) is that size's own;
+the growth exponent is the slope of log(time) and log(peak memory above the interpreter's) against
+log(rows) between consecutive sizes and over the whole range (1 = linear, 2 = quadratic).
+
+    python benchmarks/bench_maneuver_scaling.py [--rows 10000 30000 100000] [--vessel amv_osf]
+                                                [--dt 0.1] [--noise 1.0] [--method both|ls|output_error]
+
+Goal (issue 8): 100 000 rows in under 60 s and under 2 GB on the 2-core machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import math
+import platform
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+
+def _rss_mb() -> float:
+    """Peak resident memory of this process so far, MB.
+
+    /proc's VmHWM belongs to the process image (reset by exec); ru_maxrss would also count the
+    parent's memory at fork time, here the plant-made log.
+    """
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # Linux: KiB
+
+
+def child(path: str, vessel_name: str, method: str) -> None:
+    """Identify one log in this (fresh) process; print one JSON line with the figures."""
+    from components.vessel_spec import load_vessel
+    from seafmu.identification.maneuver import identify_maneuver, load_maneuver_csv
+
+    vessel = load_vessel(vessel_name)
+    base_mb = _rss_mb()  # interpreter, numpy, scipy, the vessel: not the log's
+    t0 = time.perf_counter()
+    data = load_maneuver_csv(Path(path), vessel)
+    t_load = time.perf_counter() - t0
+    out: dict[str, float | int | str] = {"rows": data.n, "load_s": t_load, "base_mb": base_mb}
+    methods = ("ls", "output_error") if method == "both" else (method,)
+    for m in methods:
+        t1 = time.perf_counter()
+        fit = identify_maneuver(data, vessel, method=m)
+        out[f"{m}_s"] = time.perf_counter() - t1
+        out[f"{m}_nrmse_val"] = fit.nrmse_validation
+    out["seconds"] = time.perf_counter() - t0
+    out["peak_mb"] = _rss_mb()
+    print(json.dumps(out))
+
+
+def make_log(rows: int, vessel_name: str, dt: float, noise: float, folder: Path) -> Path:
+    """The plant-made log (max rows) as a CSV in the folder."""
+    from components.vessel_spec import load_vessel
+    from seafmu.identification.maneuver import add_sensor_noise, simulate_maneuver, write_maneuver_csv
+
+    vessel = load_vessel(vessel_name)
+    data, _ = simulate_maneuver(vessel, duration=(rows - 1) * dt, dt=dt, seed=1)
+    if noise > 0:
+        data = add_sensor_noise(data, vessel, noise, seed=0)
+    return write_maneuver_csv(data, folder / f"{vessel_name}_{rows}.csv")
+
+
+def prefix(src: Path, rows: int, dst: Path) -> Path:
+    """The first ``rows`` data rows of a maneuver CSV (comment and header lines kept)."""
+    with open(src) as fin, open(dst, "w") as fout:
+        kept = 0
+        for line in fin:
+            if not (line[:1].isdigit() or line[:1] == "-"):  # comment and header lines
+                fout.write(line)
+                continue
+            if kept == rows:
+                break
+            fout.write(line)
+            kept += 1
+    return dst
+
+
+def slope(x0: float, y0: float, x1: float, y1: float) -> float:
+    return math.log(y1 / y0) / math.log(x1 / x0) if y0 > 0 and y1 > 0 else math.nan
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--rows", type=int, nargs="+", default=[10_000, 30_000, 100_000])
+    ap.add_argument("--vessel", default="amv_osf")
+    ap.add_argument("--dt", type=float, default=0.1, help="sample interval of the log, s")
+    ap.add_argument("--noise", type=float, default=1.0, help="x the vessel file's sensor noise")
+    ap.add_argument("--method", choices=("both", "ls", "output_error"), default="both")
+    ap.add_argument("--child", nargs=2, metavar=("CSV", "VESSEL"), help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.child:
+        child(args.child[0], args.child[1], args.method)
+        return
+    print(f"# {platform.processor() or platform.machine()}, Python {platform.python_version()}; "
+          f"{args.vessel}, dt {args.dt:g} s, sensor noise x{args.noise:g}, method {args.method}")
+    sizes = sorted(args.rows)
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        t0 = time.perf_counter()
+        full = make_log(sizes[-1], args.vessel, args.dt, args.noise, folder)
+        print(f"# log of {sizes[-1]} rows made by the plant in {time.perf_counter() - t0:.1f} s")
+        results = []
+        for n in sizes:
+            path = prefix(full, n, folder / f"log_{n}.csv")
+            proc = subprocess.run([sys.executable, __file__, "--child", str(path), args.vessel,
+                                   "--method", args.method], capture_output=True, text=True, check=False)
+            if proc.returncode != 0:
+                print(f"{n:>8} rows: failed (exit {proc.returncode}): {proc.stderr.strip()[-300:]}")
+                continue
+            results.append(json.loads(proc.stdout.strip().splitlines()[-1]))
+    print("|   rows | total s | load s | LS s | OE s | peak MB | above interpreter MB | "
+          "held-out NRMSE LS / OE |")
+    print("|---:|---:|---:|---:|---:|---:|---:|---|")
+    for r in results:
+        print(f"| {r['rows']:>6} | {r['seconds']:7.2f} | {r['load_s']:6.2f} | "
+              f"{r.get('ls_s', math.nan):5.2f} | {r.get('output_error_s', math.nan):5.2f} | "
+              f"{r['peak_mb']:7.0f} | "
+              f"{r['peak_mb'] - r['base_mb']:7.0f} | {r.get('ls_nrmse_val', math.nan):.3g} / "
+              f"{r.get('output_error_nrmse_val', math.nan):.3g} |")
+    if len(results) >= 2:
+        print("growth exponent (d log y / d log rows; 1 = linear, 2 = quadratic):")
+        pairs = list(itertools.pairwise(results))
+        if len(results) > 2:
+            pairs.append((results[0], results[-1]))
+        for a, b in pairs:
+            mem = slope(a["rows"], a["peak_mb"] - a["base_mb"], b["rows"], b["peak_mb"] - b["base_mb"])
+            tim = slope(a["rows"], a["seconds"], b["rows"], b["seconds"])
+            print(f"  {a['rows']:>6} -> {b['rows']:>6} rows: time {tim:.2f}, memory {mem:.2f}")
+
+
+if __name__ == "__main__":
+    main()
