@@ -184,7 +184,8 @@ class ObserverBlock(Block):
         M = 0.5 * (vessel.M + vessel.M.T)
         self.Minv = np.linalg.inv(M)
         self._m_diag = np.diag(M).copy()
-        self._MinvG = np.einsum("ij,jkl->ikl", self.Minv, coriolis_tensor(M))
+        G = coriolis_tensor(M) if vessel.coriolis != "none" else np.zeros((d, d, d))
+        self._MinvG = np.einsum("ij,jkl->ikl", self.Minv, G)
         self._MinvDL = self.Minv @ np.asarray(vessel.D_L, dtype=float)
         self._MinvDQ = self.Minv @ np.asarray(vessel.D_Q, dtype=float)
         if d == 6:

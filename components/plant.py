@@ -19,14 +19,14 @@ from typing import Any
 
 import numpy as np
 
-from components.allocation import FORCE_UNIT
-from components.block import Block, Interface, Signal, full_params
-from components.environment import GaussMarkovCurrent
-from components.kinematics import J, wrap_angle
-from components.sensors import SensorSuite, mag_heading_error
-from components.vessel_model import VesselModel
-from components.vessel_spec import VesselSpec, state_unit
-from components.waves import WaveField, WaveLoad
+from .allocation import FORCE_UNIT
+from .block import Block, Interface, Signal, full_params
+from .dynamics import J, wrap_angle
+from .environment import GaussMarkovCurrent
+from .sensors import SensorSuite, mag_heading_error
+from .vessel_model import VesselModel
+from .vessel_spec import VesselSpec, state_unit
+from .waves import WaveField, WaveLoad
 
 _MIN_SUBSTEP = 1e-6
 FAIL_MODES = ("ok", "stuck at zero", "stuck at value")
@@ -42,6 +42,8 @@ class PlantBlock(Block):
 
     @classmethod
     def interface(cls, vessel: VesselSpec) -> Interface:
+        # Long because it lists every signal and parameter in FMU order (appended groups keep the
+        # order of earlier versions); there is no logic to split out.
         th = vessel.thrusters
         inputs = [
             Signal(f"n_cmd_{i + 1}", "rev/s", f"shaft speed command of thruster {i + 1} '{name}'",
@@ -123,7 +125,7 @@ class PlantBlock(Block):
             Signal("usbl_dropout_length", "s", "length of the position-fix dropout (0 = none)", min=0.0,
                    start=0.0, tunable=True),
         ]
-        if vessel.dof == 3 and th.count == 2 and "land" in vessel.extra:  # the amphibious AMV
+        if "land" in vessel.extra:  # the vessel file gives land kinematics (the amphibious AMV)
             params.append(Signal("land_mode", "", "0 = water, 1 = land (screws roll on the ground), "
                                  "2 = land sideways (button held)", min=0, max=2, start=0,
                                  type="integer", tunable=True))
@@ -160,7 +162,7 @@ class PlantBlock(Block):
         self._land = None
         self._land_mode = 0
         if "land_mode" in self.params:
-            from components.amv_land import LandModel
+            from .amv_land import LandModel
 
             self._land = LandModel(vessel)
             self._land_mode = self._check_land_mode(self.params["land_mode"])

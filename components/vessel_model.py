@@ -4,6 +4,10 @@
     M nu_dot + C_RB(nu) nu + C_A(nu_r) nu_r + D_L nu_r + D_Q (|nu_r| * nu_r) + g(eta) = B T(n)
     n_dot   = (clip(n_cmd) - n) / T_n,        nu_r = nu - nu_c(eta)
 
+D_L and D_Q are full matrices (not necessarily symmetric). A vessel file with ``coriolis: none``
+drops both Coriolis terms (linear low-speed DP models such as the offshore supply vessel's,
+M nu_dot + D nu_r = tau); ``restoring`` is only read for 6 DOF.
+
 The state integrated by RK4 is x = [eta, nu, n] (2 dof + m values): the shaft lag lives in the
 same integrator so a thruster spinning up inside one co-simulation step is resolved.
 
@@ -55,6 +59,7 @@ class VesselModel:
         self.D_Q = np.array(spec.D_Q, dtype=float)
         self.B = thruster_matrix(spec.thrusters, dof)
         self.angle_index = [i for i, name in enumerate(spec.eta_names) if name in ANGLE_NAMES]
+        self.coriolis = spec.coriolis != "none"
 
         # nu_dot = K @ [T, C+g, nu_r, |nu_r| nu_r]
         self._K = self.Minv @ np.hstack([self.B, -np.eye(dof), -self.D_L, -self.D_Q])
@@ -111,10 +116,13 @@ class VesselModel:
         c, s = math.cos(psi), math.sin(psi)
         ur, vr = u - (c * vcn + s * vce), v - (-s * vcn + c * vce)
         m11, m12, m13, m21, m22, m23, a11, a12, a13, a21, a22, a23 = self._c3
-        # C(nu) nu = [-r a_y, r a_x, u a_y - v a_x], [a_x, a_y] from M nu (6-DOF m2c restricted to u, v, r).
-        ax, ay = m11 * u + m12 * v + m13 * r, m21 * u + m22 * v + m23 * r
-        ex, ey = a11 * ur + a12 * vr + a13 * r, a21 * ur + a22 * vr + a23 * r
-        cor = [-r * (ay + ey), r * (ax + ex), u * ay - v * ax + ur * ey - vr * ex]
+        if self.coriolis:
+            # C(nu) nu = [-r a_y, r a_x, u a_y - v a_x], [a_x, a_y] from M nu (6-DOF m2c on u, v, r).
+            ax, ay = m11 * u + m12 * v + m13 * r, m21 * u + m22 * v + m23 * r
+            ex, ey = a11 * ur + a12 * vr + a13 * r, a21 * ur + a22 * vr + a23 * r
+            cor = [-r * (ay + ey), r * (ax + ex), u * ay - v * ax + ur * ey - vr * ex]
+        else:
+            cor = [0.0, 0.0, 0.0]
         if tau_ext is not None:
             cor = [c - te for c, te in zip(cor, tau_ext, strict=True)]
         T, ndot = self._thrust_and_lag(n, n_cmd)
@@ -140,12 +148,17 @@ class VesselModel:
             cphi * q - sphi * r,
             t,
         ]
-        # M_RB nu and M_A nu_r (the current has no angular part).
-        a1, a2, a3, b1, b2, b3, e1, e2, e3, f1, f2, f3 = (self._M_stack @ x[6:12]).tolist()
+        # M_RB nu and M_A nu_r (the current has no angular part); zero without Coriolis terms.
+        if self.coriolis:
+            a1, a2, a3, b1, b2, b3, e1, e2, e3, f1, f2, f3 = (self._M_stack @ x[6:12]).tolist()
+        else:
+            a1 = a2 = a3 = b1 = b2 = b3 = e1 = e2 = e3 = f1 = f2 = f3 = 0.0
         if vcn != 0.0 or vce != 0.0:
             uc, vc, wc = R11 * vcn + R21 * vce, R12 * vcn + R22 * vce, R13 * vcn + R23 * vce
-            mc = [ra * uc + rb * vc + rc * wc for ra, rb, rc in self._MA_lin]
-            e1, e2, e3, f1, f2, f3 = e1 - mc[0], e2 - mc[1], e3 - mc[2], f1 - mc[3], f2 - mc[4], f3 - mc[5]
+            if self.coriolis:
+                mc = [ra * uc + rb * vc + rc * wc for ra, rb, rc in self._MA_lin]
+                e1, e2, e3 = e1 - mc[0], e2 - mc[1], e3 - mc[2]
+                f1, f2, f3 = f1 - mc[3], f2 - mc[4], f3 - mc[5]
             ur, vr, wr = u - uc, v - vc, w - wc
         else:
             ur, vr, wr = u, v, w
@@ -213,9 +226,9 @@ class VesselModel:
         """(eta_dot, nu_dot) in plain matrix form; slow, for checking ``rhs`` and for readers."""
         eta, nu = np.asarray(eta, float), np.asarray(nu, float)
         nu_r = nu - (np.zeros(self.dof) if nu_c is None else np.asarray(nu_c, float))
+        cor = m2c(self.M_RB, nu) @ nu + m2c(self.M_A, nu_r) @ nu_r if self.coriolis else 0.0
         rest = (
-            m2c(self.M_RB, nu) @ nu
-            + m2c(self.M_A, nu_r) @ nu_r
+            cor
             + self.D_L @ nu_r
             + self.D_Q @ (np.abs(nu_r) * nu_r)
             + self.restoring(eta)
