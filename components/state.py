@@ -2,8 +2,9 @@
 
 ``capture(block)`` walks the block's attributes and returns a tree of plain values only: numbers,
 strings, ``None``, NumPy arrays (copies) and NumPy scalars of numeric dtypes, and marker dicts
-(``{"$t": ...}``) for lists, tuples, dicts, slices, random generators (their bit generator's
-state dict) and the helper objects a block owns (their attributes, recursively). Objects seen
+(``{"$t": ...}``) for lists, tuples, named tuples, sets, dicts, slices, random generators
+(their bit generator's state dict) and the helper objects a block owns (their attributes,
+recursively). Objects seen
 twice (aliases: one array under two names, one helper object referenced twice) are captured once
 and referenced by number, so a restored block has the same aliasing as the captured one.
 
@@ -85,6 +86,11 @@ class _Capture:
             return {"$t": "slice", "items": [self._plain(x, path) for x in (v.start, v.stop, v.step)]}
         if t is tuple:
             return {"$t": "tuple", "items": [self.node(x, f"{path}[{i}]") for i, x in enumerate(v)]}
+        if t is frozenset:
+            return {"$t": "frozenset", "items": [self._key(x, path) for x in v]}
+        if issubclass(t, tuple) and hasattr(t, "_fields") and _is_state_class(t):  # a NamedTuple
+            return {"$t": "ntuple", "class": _qualname(t),
+                    "items": [self.node(x, f"{path}.{f}") for f, x in zip(t._fields, v, strict=True)]}
         n, seen = self._memo(v)
         if seen:
             return {"$t": "ref", "id": n}
@@ -94,6 +100,8 @@ class _Capture:
             return {"$t": "nd", "id": n, "value": np.array(v, copy=True, order="K")}
         if t is list:
             return {"$t": "list", "id": n, "items": [self.node(x, f"{path}[{i}]") for i, x in enumerate(v)]}
+        if t is set:
+            return {"$t": "set", "id": n, "items": [self._key(x, path) for x in v]}
         if t is dict:
             items = []
             for k, x in v.items():
@@ -152,9 +160,10 @@ def _state_classes() -> dict[str, type]:
         if not name.startswith(STATE_PACKAGE) or name in CONFIG_MODULES or mod is None:
             continue
         for obj in list(vars(mod).values()):
-            if (isinstance(obj, type) and obj.__module__ == name and obj.__new__ is object.__new__
-                    and not issubclass(obj, BaseException)):
-                out[_qualname(obj)] = obj
+            if not (isinstance(obj, type) and obj.__module__ == name) or issubclass(obj, BaseException):
+                continue
+            if obj.__new__ is object.__new__ or (issubclass(obj, tuple) and hasattr(obj, "_fields")):
+                out[_qualname(obj)] = obj  # plain classes, made with object.__new__; NamedTuples
     return out
 
 
@@ -220,6 +229,22 @@ class _Restore:
             return tuple(
                 self.build(lv[i] if lv else _MISSING, x, f"{path}[{i}]") for i, x in enumerate(items)
             )
+        if kind == "frozenset":
+            return frozenset(self._key(x, path) for x in self._items(node, path))
+        if kind == "set":
+            n = self._id(node, path)
+            out_set = {self._key(x, path) for x in self._items(node, path)}
+            self.built[n] = out_set
+            return out_set
+        if kind == "ntuple":
+            cls = self._class(node.get("class"), path)
+            items = self._items(node, path)
+            if not (issubclass(cls, tuple) and hasattr(cls, "_fields")) or len(items) != len(cls._fields):
+                raise StateError(f"{path}: bad {node.get('class')!r}")
+            lv = live if type(live) is cls else None
+            built = [self.build(lv[i] if lv is not None else _MISSING, x, f"{path}.{f}")
+                     for i, (f, x) in enumerate(zip(cls._fields, items, strict=True))]
+            return tuple.__new__(cls, built)  # immutable: an equal value, made without running code
         if kind == "nd":
             return self._array(live, node, path)
         if kind == "list":

@@ -527,9 +527,10 @@ class BlockSlave(Fmi2Slave):
         if tree.get("block") is None:
             block = None
         else:
-            try:  # into the live block, all or nothing ...
-                if block is None:
-                    raise StateError("no block yet")
+            try:  # into the live block, all or nothing, if it was made from the same parameters
+                # (then its configuration, e.g. the vessel, is the state's) ...
+                if block is None or params != self._params:
+                    raise StateError("no block of these parameters")
                 block.import_state(tree["block"])
             except StateError:  # ... or into a new one made from the state's parameters
                 block = self._make_block(params)

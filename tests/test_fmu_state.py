@@ -418,7 +418,7 @@ def test_capture_refuses_what_is_not_data_and_restore_is_all_or_nothing(minerva:
     block.start(u)
     block.step(0.0, 0.05, u)
     block._probe = print  # type: ignore[attr-defined]
-    with pytest.raises(StateError, match=r"ControllerBlock\._probe: builtins\.builtin_function"):
+    with pytest.raises(StateError, match=r"\._probe: builtins\.builtin_function"):
         capture(block)
     block._probe = _Helper()  # type: ignore[attr-defined]  # not a components class
     with pytest.raises(StateError, match="is not state data"):
