@@ -48,7 +48,7 @@ import numpy as np
 from . import registry
 from .block import Block, Interface, Signal
 from .thrusters import max_thrust, speed_to_thrust, thrust_to_speed, thruster_matrix
-from .vessel_spec import VesselSpec
+from .vessel_spec import TAU_NAMES, VesselSpec
 
 FORCE_UNIT = {"X": "N", "Y": "N", "Z": "N", "K": "N.m", "M": "N.m", "N": "N.m"}
 
@@ -186,10 +186,7 @@ def error_scale(B: np.ndarray, thrust_scale: float) -> np.ndarray:
     Rows: X, Y, Z, K, M, N (6 DOF) or X, Y, N (3 DOF).
     """
     B = np.asarray(B, dtype=float)
-    d = B.shape[0]
-    moment = np.zeros(d, dtype=bool)
-    moment[3:] = d == 6
-    moment[2] = d == 3
+    moment = np.array([t in ("K", "M", "N") for t in TAU_NAMES[B.shape[0]]])
     f = np.linalg.norm(B[~moment], axis=0)
     mo = np.linalg.norm(B[moment], axis=0)
     arm = float(np.mean(mo[f > 1e-12] / f[f > 1e-12])) if np.any(f > 1e-12) else 1.0

@@ -1,0 +1,197 @@
+"""components.dynamics: the textbook forms (Fossen's notation), and every unrolled hot path held equal
+to them (plant right-hand side, observer restoring and model, controller feed-forward)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from components.block import full_params
+from components.controller import ControllerBlock
+from components.dynamics import (
+    J,
+    coriolis_force,
+    coriolis_kron,
+    coriolis_tensor,
+    gvect,
+    m2c,
+    restoring_coefficients,
+    restoring_force,
+    rpsi,
+    rzyx,
+    smtrx,
+    tzyx,
+    tzyx_inv,
+    wrap_angle,
+)
+from components.observer import ObserverBlock
+from components.vessel_model import VesselModel
+from components.vessel_spec import VesselSpec, load_vessel
+
+RNG = np.random.default_rng(7)
+
+
+def _random_mass(d: int) -> np.ndarray:
+    A = RNG.normal(size=(d, d))
+    return A @ A.T + d * np.eye(d) + 0.3 * RNG.normal(size=(d, d))  # deliberately not symmetric
+
+
+@pytest.fixture(scope="module")
+def supply() -> VesselSpec:
+    return load_vessel("supply")
+
+
+# -- rotations ----------------------------------------------------------------------------------
+
+def test_rzyx_is_the_zyx_euler_rotation_and_tzyx_inverts() -> None:
+    for _ in range(20):
+        phi, theta, psi = RNG.uniform(-1.2, 1.2, 3)
+        R = rzyx(phi, theta, psi)
+        ref = Rotation.from_euler("ZYX", [psi, theta, phi]).as_matrix()
+        np.testing.assert_allclose(R, ref, atol=1e-14)
+        np.testing.assert_allclose(R.T @ R, np.eye(3), atol=1e-14)
+        np.testing.assert_allclose(tzyx(phi, theta) @ tzyx_inv(phi, theta), np.eye(3), atol=1e-12)
+    psi = 0.7
+    np.testing.assert_allclose(rpsi(psi), rzyx(0.0, 0.0, psi), atol=1e-15)
+    np.testing.assert_allclose(J(np.array([1.0, 2.0, psi])), rpsi(psi))
+    eta6 = np.array([0, 0, 0, 0.1, -0.2, psi])
+    Jm = J(eta6)
+    np.testing.assert_allclose(Jm[:3, :3], rzyx(0.1, -0.2, psi))
+    np.testing.assert_allclose(Jm[3:, 3:], tzyx(0.1, -0.2))
+    a, b = RNG.normal(size=3), RNG.normal(size=3)
+    np.testing.assert_allclose(smtrx(a) @ b, np.cross(a, b), atol=1e-14)
+    assert wrap_angle(np.pi) == np.pi and wrap_angle(-np.pi) == np.pi and wrap_angle(0.5) == 0.5
+
+
+# -- Coriolis -----------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("d", [3, 6])
+def test_coriolis_forms_agree_and_do_no_work(d: int) -> None:
+    M = _random_mass(d)
+    for _ in range(10):
+        nu = RNG.normal(size=d)
+        C = m2c(M, nu)
+        np.testing.assert_allclose(C + C.T, 0.0, atol=1e-12)  # skew-symmetric: nu^T C nu = 0
+        np.testing.assert_allclose(coriolis_force(M, nu), C @ nu, atol=1e-10)
+        G = coriolis_tensor(M)
+        np.testing.assert_allclose(0.5 * (G @ nu) @ nu, C @ nu, atol=1e-10)
+        np.testing.assert_allclose(coriolis_kron(M) @ np.kron(nu, nu), C @ nu, atol=1e-10)
+        # G @ nu is the Jacobian of C(nu) nu
+        eps = 1e-6
+        num = np.column_stack([(m2c(M, nu + eps * e) @ (nu + eps * e) - m2c(M, nu - eps * e) @ (nu - eps * e))
+                               / (2 * eps) for e in np.eye(d)])
+        np.testing.assert_allclose(G @ nu, num, atol=1e-6)
+    batch = RNG.normal(size=(4, 5, d))
+    out = coriolis_force(M, batch)
+    assert out.shape == batch.shape
+    np.testing.assert_allclose(out[2, 3], m2c(M, batch[2, 3]) @ batch[2, 3], atol=1e-10)
+
+
+def test_m2c_6dof_is_fossens_block_form() -> None:
+    """C_RB(nu) of a rigid body at the CG: [[0, -m S(nu1)], [-m S(nu1), -S(I nu2)]] (Fossen eq. 3.56)."""
+    m, Ib = 40.0, np.diag([2.0, 3.0, 4.0])
+    M = np.block([[m * np.eye(3), np.zeros((3, 3))], [np.zeros((3, 3)), Ib]])
+    nu = RNG.normal(size=6)
+    expected = np.block([[np.zeros((3, 3)), -m * smtrx(nu[:3])], [-m * smtrx(nu[:3]), -smtrx(Ib @ nu[3:])]])
+    np.testing.assert_allclose(m2c(M, nu), expected, atol=1e-12)
+
+
+# -- restoring ----------------------------------------------------------------------------------
+
+def test_gvect_is_weight_and_buoyancy_rotated_into_the_body() -> None:
+    """g(eta) = -[f_g + f_b; r_g x f_g + r_b x f_b], f = R^T of the NED forces (Fossen eq. 4.5)."""
+    W, B = 2800 * 9.81, 2800 * 9.81 + 30.0
+    r_g, r_b = np.array([0.01, -0.02, 0.03]), np.array([0.0, 0.01, -0.05])
+    for _ in range(10):
+        phi, theta, psi = RNG.uniform(-0.8, 0.8, 3)
+        Rt = rzyx(phi, theta, psi).T
+        f_g, f_b = Rt @ [0.0, 0.0, W], Rt @ [0.0, 0.0, -B]
+        expected = -np.concatenate([f_g + f_b, np.cross(r_g, f_g) + np.cross(r_b, f_b)])
+        g = gvect(W, B, theta, phi, r_g, r_b)
+        np.testing.assert_allclose(g, expected, rtol=1e-12, atol=1e-9)
+        coeffs = restoring_coefficients(W, B, r_g, r_b)
+        np.testing.assert_allclose(restoring_force(coeffs, phi, theta), g, rtol=1e-12, atol=1e-9)
+
+
+# -- the hot paths, held equal to the matrix form -----------------------------------------------
+
+def _vessels() -> list[str]:
+    return ["minerva2", "minerva2_published_damping", "amv_osf", "supply"]
+
+
+@pytest.mark.parametrize("name", _vessels())
+def test_plant_rhs_equals_the_matrix_form(name: str) -> None:
+    """VesselModel.rhs (unrolled floats) = derivative (m2c, J, gvect, D) with thrust and current."""
+    vs = load_vessel(name)
+    model = VesselModel(vs)
+    d, m = vs.dof, vs.thrusters.count
+    for k in range(10):
+        eta = RNG.normal(scale=[1, 1, 1, 0.2, 0.2, 2][:d] if d == 6 else [1, 1, 2], size=d)
+        nu = RNG.normal(scale=0.5, size=d)
+        n = RNG.uniform(-1, 1, m) * vs.thrusters.n_max
+        vcn, vce = (0.0, 0.0) if k == 0 else tuple(RNG.normal(scale=0.3, size=2))
+        x = model.initial_state(eta, nu, n)
+        xdot = model.rhs(x, model.clip(n), vcn, vce)
+        nu_c = np.zeros(d)
+        if d == 6:
+            nu_c[:3] = rzyx(*eta[3:6]).T @ [vcn, vce, 0.0]
+        else:
+            nu_c[:2] = (rpsi(eta[2]).T @ [vcn, vce, 0.0])[:2]
+        eta_dot, nu_dot = model.derivative(eta, nu, model.B @ model.thrust(n), nu_c)
+        scale = np.abs(nu_dot).max() + 1.0
+        np.testing.assert_allclose(xdot[:d], eta_dot, atol=1e-12)
+        np.testing.assert_allclose(xdot[d : 2 * d], nu_dot, atol=1e-10 * scale)
+        if d == 6:
+            rs = vs.restoring
+            g = gvect(rs.weight, rs.buoyancy, eta[4], eta[3], rs.r_g, rs.r_b)
+            np.testing.assert_allclose(model.restoring(eta), g)
+
+
+@pytest.mark.parametrize("name", _vessels())
+def test_observer_model_equals_the_plant_matrix_form(name: str) -> None:
+    """The EKF's f(x) (tensor Coriolis, unrolled restoring) = VesselModel.derivative with tau + b."""
+    vs = load_vessel(name)
+    iface = ObserverBlock.interface(vs)
+    obs = ObserverBlock(vs, full_params(iface, {}))
+    model = VesselModel(vs)
+    d = vs.dof
+    for _ in range(5):
+        x = np.concatenate([RNG.normal(scale=0.2, size=d), RNG.normal(scale=0.5, size=d),
+                            RNG.normal(scale=10.0, size=d)])
+        tau = RNG.normal(scale=100.0, size=d)
+        f, _ = obs._model(x, tau)
+        eta_dot, nu_dot = model.derivative(x[:d], x[d : 2 * d], tau + x[2 * d :])
+        np.testing.assert_allclose(f[:d], eta_dot, atol=1e-12)
+        np.testing.assert_allclose(f[d : 2 * d], nu_dot, atol=1e-9 * (np.abs(nu_dot).max() + 1.0))
+
+
+@pytest.mark.parametrize("name", ["minerva2", "supply"])
+def test_dp_feedforward_equals_the_matrix_form(name: str) -> None:
+    """dp_pid's waypoint feed-forward M nu_d_dot + C(nu_d) nu_d + D(nu_d) nu_d, nu_d = J^-1 eta_d_dot,
+    nu_d_dot = J^-1 eta_d_dd - omega x v (body turning under a NED velocity), in matrix form."""
+    vs = load_vessel(name)
+    ctl = ControllerBlock(vs, full_params(ControllerBlock.interface(vs), {}))
+    d = vs.dof
+    M = 0.5 * (vs.M + vs.M.T)
+    for _ in range(5):
+        eta = RNG.normal(scale=0.3, size=d)
+        ed, edd = RNG.normal(scale=0.3, size=d), RNG.normal(scale=0.1, size=d)
+        Jm = J(eta)
+        nu_d = np.linalg.solve(Jm, ed)
+        nu_dd = np.linalg.solve(Jm, edd)
+        w = nu_d[3:] if d == 6 else np.array([0.0, 0.0, nu_d[2]])
+        v = nu_d[:3] if d == 6 else np.array([nu_d[0], nu_d[1], 0.0])
+        nu_dd[: 3 if d == 6 else 2] -= np.cross(w, v)[: 3 if d == 6 else 2]
+        cor = m2c(M, nu_d) @ nu_d if vs.coriolis != "none" else 0.0
+        expected = M @ nu_dd + cor + vs.D_L @ nu_d + vs.D_Q @ (np.abs(nu_d) * nu_d)
+        np.testing.assert_allclose(ctl._feedforward(eta, ed, edd), expected, rtol=1e-10,
+                                   atol=1e-9 * np.abs(expected).max())
+
+
+def test_linear_model_has_no_coriolis(supply: VesselSpec) -> None:
+    """coriolis: none (the supply vessel): M nu_dot + D nu = tau exactly, even while turning."""
+    model = VesselModel(supply)
+    nu = np.array([2.0, -0.5, 0.05])
+    _, nu_dot = model.derivative(np.array([0, 0, 0.3]), nu, np.zeros(3))
+    np.testing.assert_allclose(nu_dot, -np.linalg.solve(supply.M, supply.D_L @ nu), rtol=1e-12)
