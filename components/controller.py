@@ -161,7 +161,7 @@ class ControllerBlock(Block):
             if v < 1 or not v.is_integer():
                 raise ValueError(f"controller: parameter 'lm_lines' must be a whole number >= 1, "
                                  f"got {value!r}")
-        elif name in POSITIVE or name.startswith("tau_max_"):
+        elif name in POSITIVE:
             if v <= 0.0:
                 raise ValueError(f"controller: parameter '{name}' must be positive, got {value!r}")
         elif name in ("ff_gain", "joy_deadband"):
@@ -266,7 +266,7 @@ class ControllerBlock(Block):
         dz = h * e
         over = tau_unsat - tau  # non-zero only where saturated; sign = direction of the excess
         if over.any():
-            sat = over != 0.0
+            sat = (over != 0.0) & (self.tau_max > 0.0)  # tau_max 0: a DOF the thrusters cannot make
             sig = np.sign(over[sat])[:, None]
             if Jt is None:
                 coupling = np.ones((1, 1))
