@@ -38,7 +38,7 @@ from typing import Any
 
 import numpy as np
 
-from components.kinematics import wrap_angle
+from .dynamics import wrap_angle
 
 DEFAULT_SLIP_TIME = 0.5  # s, assumed (see module doc)
 YAW_FORMS = ("physical", "published")

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from components.kinematics import rzyx
+from .dynamics import rzyx
 
 
 @dataclass

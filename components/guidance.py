@@ -36,7 +36,7 @@ from functools import cached_property
 
 import numpy as np
 
-from components.kinematics import wrap_angle
+from .dynamics import wrap_angle
 
 RK4_DT_MAX = 0.05  # s: largest sub-step of the heading filter
 MIN_LEG = 1e-3  # m: shorter legs (e.g. the approach leg when the vessel starts on waypoint 1) are dropped

@@ -23,7 +23,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from components.kinematics import wrap_angle
+from .dynamics import wrap_angle
 
 RK4_DT_MAX = 0.05  # s: largest RK4 sub-step when limits are active
 _TWO_PI = 2.0 * math.pi

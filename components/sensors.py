@@ -29,8 +29,8 @@ import math
 
 import numpy as np
 
-from components.kinematics import wrap_angle
-from components.vessel_spec import ANGLE_NAMES, SensorSpec
+from .dynamics import wrap_angle
+from .vessel_spec import ANGLE_NAMES, SensorSpec
 
 _EPS = 1e-6  # in units of sample periods: absorbs round-off of t + h at exact sample instants
 FAULT_STREAM = 0x5EAF  # entropy tag of the fault generator: SeedSequence([seed, FAULT_STREAM])

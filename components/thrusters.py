@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from components.vessel_spec import ThrusterSpec
+from .vessel_spec import ThrusterSpec
 
 
 def configuration_matrix(positions: np.ndarray, directions: np.ndarray, dof: int = 6) -> np.ndarray:

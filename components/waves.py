@@ -42,7 +42,7 @@ import math
 
 import numpy as np
 
-from components.vessel_spec import VesselSpec
+from .vessel_spec import VesselSpec
 
 G = 9.81  # m/s^2
 BAND = (0.5, 4.0)  # component frequencies span [BAND[0], BAND[1]] * omega_p
