@@ -5,8 +5,11 @@
     n_dot   = (clip(n_cmd) - n) / T_n,        nu_r = nu - nu_c(eta)
 
 D_L and D_Q are full matrices (not necessarily symmetric). A vessel file with ``coriolis: none``
-drops both Coriolis terms (linear low-speed DP models such as the offshore supply vessel's,
-M nu_dot + D nu_r = tau); ``restoring`` is only read for 6 DOF.
+drops both Coriolis terms (linear low-speed DP models such as the offshore supply vessel's);
+``current_inertia: relative`` makes the inertia act on the relative acceleration, M nu_r_dot
+(Fossen's DP model M nu_r_dot + D nu_r = tau): with a current constant in NED,
+nu_c_dot = -omega x nu_c in the body, so M nu_dot gets the extra force -M [omega x nu_c1; 0].
+``restoring`` is only read for 6 DOF.
 
 The state integrated by RK4 is x = [eta, nu, n] (2 dof + m values): the shaft lag lives in the
 same integrator so a thruster spinning up inside one co-simulation step is resolved.
@@ -60,6 +63,8 @@ class VesselModel:
         self.B = thruster_matrix(spec.thrusters, dof)
         self.angle_index = [i for i, name in enumerate(spec.eta_names) if name in ANGLE_NAMES]
         self.coriolis = spec.coriolis != "none"
+        self.relative_inertia = spec.current_inertia == "relative"
+        self._M_lin = self.M[:, :3].tolist() if dof == 6 else self.M[:, :2].tolist()  # M times a velocity
 
         # nu_dot = K @ [T, C+g, nu_r, |nu_r| nu_r]
         self._K = self.Minv @ np.hstack([self.B, -np.eye(dof), -self.D_L, -self.D_Q])
@@ -123,6 +128,10 @@ class VesselModel:
             cor = [-r * (ay + ey), r * (ax + ex), u * ay - v * ax + ur * ey - vr * ex]
         else:
             cor = [0.0, 0.0, 0.0]
+        if self.relative_inertia and (vcn != 0.0 or vce != 0.0):
+            # + M (omega x nu_c), omega x nu_c = (-r v_c, r u_c, 0): M nu_r_dot instead of M nu_dot
+            wx, wy = -r * (v - vr), r * (u - ur)
+            cor = [cc + ma * wx + mb * wy for cc, (ma, mb) in zip(cor, self._M_lin, strict=True)]
         if tau_ext is not None:
             cor = [c - te for c, te in zip(cor, tau_ext, strict=True)]
         T, ndot = self._thrust_and_lag(n, n_cmd)
@@ -148,6 +157,7 @@ class VesselModel:
             cphi * q - sphi * r,
             t,
         ]
+        rel = None  # M (omega x nu_c) with current_inertia: relative
         # M_RB nu and M_A nu_r (the current has no angular part); zero without Coriolis terms.
         if self.coriolis:
             a1, a2, a3, b1, b2, b3, e1, e2, e3, f1, f2, f3 = (self._M_stack @ x[6:12]).tolist()
@@ -160,6 +170,9 @@ class VesselModel:
                 e1, e2, e3 = e1 - mc[0], e2 - mc[1], e3 - mc[2]
                 f1, f2, f3 = f1 - mc[3], f2 - mc[4], f3 - mc[5]
             ur, vr, wr = u - uc, v - vc, w - wc
+            if self.relative_inertia:  # + M (omega x nu_c): M nu_r_dot instead of M nu_dot
+                wx, wy, wz = q * wc - r * vc, r * uc - p * wc, p * vc - q * uc
+                rel = [ma * wx + mb * wy + mc_ * wz for ma, mb, mc_ in self._M_lin]
         else:
             ur, vr, wr = u, v, w
         # C(nu) nu = [nu2 x a; nu1 x a + nu2 x b] with [a; b] = M nu (Fossen's m2c, as cross products).
@@ -174,6 +187,8 @@ class VesselModel:
             w * a1 - u * a3 + wr * e1 - ur * e3 + r * t1 - p * t3 + gz * sth + gx * R33,
             u * a2 - v * a1 + ur * e2 - vr * e1 + p * t2 - q * t1 - gx * R32 - gy * sth,
         ]
+        if rel is not None:
+            force = [f + m for f, m in zip(force, rel, strict=True)]
         if tau_ext is not None:
             force = [c - te for c, te in zip(force, tau_ext, strict=True)]
         T, ndot = self._thrust_and_lag(n, n_cmd)
@@ -227,6 +242,11 @@ class VesselModel:
         eta, nu = np.asarray(eta, float), np.asarray(nu, float)
         nu_r = nu - (np.zeros(self.dof) if nu_c is None else np.asarray(nu_c, float))
         cor = m2c(self.M_RB, nu) @ nu + m2c(self.M_A, nu_r) @ nu_r if self.coriolis else 0.0
+        if self.relative_inertia and nu_c is not None:  # M nu_r_dot: + M [omega x nu_c1; 0]
+            k = 3 if self.dof == 6 else 2
+            w = np.asarray(nu, float)[3:] if self.dof == 6 else np.array([0.0, 0.0, nu[2]])
+            wxc = np.cross(w, np.append(np.asarray(nu_c, float)[:k], [0.0] * (3 - k)))[:k]
+            cor = cor + self.M[:, :k] @ wxc
         rest = (
             cor
             + self.D_L @ nu_r

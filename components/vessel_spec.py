@@ -25,6 +25,9 @@ NU_NAMES = {3: ["u", "v", "r"], 6: ["u", "v", "w", "p", "q", "r"]}
 TAU_NAMES = {3: ["X", "Y", "N"], 6: ["X", "Y", "Z", "K", "M", "N"]}
 ANGLE_NAMES = {"roll", "pitch", "yaw"}
 CORIOLIS_FORMS = ("full", "none")  # C_RB(nu) nu + C_A(nu_r) nu_r, or no Coriolis terms (linear models)
+# What the inertia acts on in a current: M nu_dot (section 1 of the brief) or M nu_r_dot (Fossen's
+# linear DP model, M nu_r_dot + D nu_r = tau; they differ by M (omega x nu_c) while turning).
+CURRENT_INERTIA = ("absolute", "relative")
 # Units a thruster's speed and thrust coefficient may be given in (``unit:`` beside value and
 # source), with the conversion to what the model works in: shaft speeds in rev/s.
 SPEED_UNITS: dict[str, Callable[[float], float]] = {
@@ -112,6 +115,7 @@ class VesselSpec:
     extra: dict[str, Any] = field(default_factory=dict)  # vessel-specific data (e.g. land-mode kinematics)
     gnc: GncSpec | None = None  # always set by the loader (the file's gnc section is required)
     coriolis: str = "full"  # one of CORIOLIS_FORMS
+    current_inertia: str = "absolute"  # one of CURRENT_INERTIA
 
     @property
     def M(self) -> np.ndarray:
@@ -250,6 +254,8 @@ def _unwrap(r: _Reader, node: Any, where: str) -> Any:
 
 
 def _parse(doc: dict, path: Path) -> VesselSpec:
+    # Long because it reads every section of the file in order with its own one-line error
+    # messages; each section is a few lines and the GNC section is already split out.
     r = _Reader(path)
     name = str(r.get(doc, "name", ""))
     dof = r.get(doc, "dof", "")
@@ -277,6 +283,10 @@ def _parse(doc: dict, path: Path) -> VesselSpec:
     coriolis = r.get(doc, "coriolis", "", required=False) or "full"
     if coriolis not in CORIOLIS_FORMS:
         raise r.fail("coriolis", f"must be one of {', '.join(CORIOLIS_FORMS)}, got {coriolis!r}")
+    current_inertia = r.get(doc, "current_inertia", "", required=False) or "absolute"
+    if current_inertia not in CURRENT_INERTIA:
+        raise r.fail("current_inertia", f"must be one of {', '.join(CURRENT_INERTIA)}, "
+                     f"got {current_inertia!r}")
 
     th = r.get(doc, "thrusters", "")
     law = r.get(th, "law", "thrusters")
@@ -353,6 +363,7 @@ def _parse(doc: dict, path: Path) -> VesselSpec:
         extra=_unwrap(r, dict(doc.get("extra", {}) or {}), "extra"),
         gnc=gnc,
         coriolis=coriolis,
+        current_inertia=current_inertia,
     )
 
 

@@ -11,17 +11,17 @@ import numpy as np
 import pytest
 import yaml
 
-from components import registry
-from components.allocation import AllocationLaw, AllocatorBlock, thrust_capability
-from components.block import full_params
-from components.controller import ControllerBlock
-from components.dp_pid import DPPidController
-from components.guidance import PathGuidance
-from components.heading_autopilot import HeadingAutopilot
-from components.plant import PlantBlock
-from components.vessel_spec import VESSEL_DIR, VesselFileError, VesselSpec, load_vessel
+from seafmu.components import registry
+from seafmu.components.allocation import AllocationLaw, AllocatorBlock, thrust_capability
+from seafmu.components.block import full_params
+from seafmu.components.controller import ControllerBlock
+from seafmu.components.dp_pid import DPPidController
+from seafmu.components.guidance import PathGuidance
+from seafmu.components.heading_autopilot import HeadingAutopilot
+from seafmu.components.plant import PlantBlock
+from seafmu.components.vessel_spec import VESSEL_DIR, VesselFileError, VesselSpec, load_vessel
 
-COMPONENTS = Path(__file__).resolve().parents[1] / "components"
+COMPONENTS = Path(registry.__file__).parent
 
 
 def block(cls: type, vessel: VesselSpec, **params: object):

@@ -19,9 +19,9 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from components.block import full_params
-from components.vessel_spec import VesselSpec, load_vessel
-from fmus.registry import BLOCKS
+from seafmu.components.block import full_params
+from seafmu.components.vessel_spec import VesselSpec, load_vessel
+from seafmu.fmus.registry import BLOCKS
 
 # -- the brief, section 5b (typed here on purpose: independent of the vessel file) ---------------
 MASS, LENGTH, GRAVITY = 6000e3, 76.2, 9.81
@@ -44,13 +44,15 @@ def supply() -> VesselSpec:
     return load_vessel("supply")
 
 
-def reference_rhs(t: float, x: np.ndarray, n_cmd_rpm: np.ndarray) -> np.ndarray:
-    """The brief's model: x = [north, east, psi, u, v, r, n_1..n_6 (RPM)]."""
-    psi, nu, n = x[2], x[3:6], x[6:]
+def reference_rhs(t: float, x: np.ndarray, n_cmd_rpm: np.ndarray, current_ned: np.ndarray) -> np.ndarray:
+    """The brief's model in relative velocities: x = [north, east, psi, u_r, v_r, r, n_1..n_6 (RPM)],
+    M nu_r_dot + D nu_r = tau, and with a current constant in NED eta_dot = R(psi) nu_r + v_c."""
+    psi, nu_r, n = x[2], x[3:6], x[6:]
     c, s = math.cos(psi), math.sin(psi)
-    eta_dot = [c * nu[0] - s * nu[1], s * nu[0] + c * nu[1], nu[2]]
+    vn, ve = current_ned
+    eta_dot = [c * nu_r[0] - s * nu_r[1] + vn, s * nu_r[0] + c * nu_r[1] + ve, nu_r[2]]
     tau = T_CONF @ (K_RPM * n * np.abs(n))
-    nu_dot = np.linalg.solve(M_SI, tau - D_SI @ nu)
+    nu_dot = np.linalg.solve(M_SI, tau - D_SI @ nu_r)
     n_dot = (np.clip(n_cmd_rpm, -N_MAX_RPM, N_MAX_RPM) - n) / T_SHAFT
     return np.concatenate([eta_dot, nu_dot, n_dot])
 
@@ -88,7 +90,7 @@ def test_file_is_the_published_bis_data(supply: VesselSpec) -> None:
 
 
 def test_thrusters_in_rpm_become_the_model_units(supply: VesselSpec) -> None:
-    from components.thrusters import max_thrust, thruster_matrix
+    from seafmu.components.thrusters import max_thrust, thruster_matrix
 
     th = supply.thrusters
     np.testing.assert_allclose(th.n_max * 60.0, N_MAX_RPM, rtol=1e-15)
@@ -99,16 +101,22 @@ def test_thrusters_in_rpm_become_the_model_units(supply: VesselSpec) -> None:
     np.testing.assert_allclose(thruster_matrix(th, 3), T_CONF, atol=1e-12)
 
 
-def test_open_loop_rpm_steps_match_an_independent_model(supply: VesselSpec) -> None:
-    """Plant block vs solve_ivp of the brief's equations: position within 0.1 % of the distance run."""
+@pytest.mark.parametrize("current", [0.0, 0.5])
+def test_open_loop_rpm_steps_match_an_independent_model(supply: VesselSpec, current: float) -> None:
+    """Plant block vs solve_ivp of the brief's equations: position within 0.1 % of the distance run,
+    without and with a current (0.5 m/s towards 30 deg: the model's M nu_r_dot, not M nu_dot)."""
     h = 0.5
-    plant = plant_block(supply)
+    beta = math.radians(30.0)
+    current_ned = current * np.array([math.cos(beta), math.sin(beta)])
+    plant = plant_block(supply, current_speed=current, current_direction=beta)
     x = np.zeros(12)
+    x[3:5] = -current_ned  # at rest over ground at psi = 0: nu_r = -nu_c
     t_plant, pos_plant, pos_ref, yaw_err = 0.0, [], [], []
     times = [p[0] for p in PROGRAMME] + [END]
     for (t0, cmd), t1 in zip(PROGRAMME, times[1:], strict=True):
         cmd = np.array(cmd, dtype=float)
-        sol = solve_ivp(reference_rhs, (t0, t1), x, args=(cmd,), method="DOP853", rtol=1e-11, atol=1e-9,
+        sol = solve_ivp(reference_rhs, (t0, t1), x, args=(cmd, current_ned), method="DOP853", rtol=1e-11,
+                        atol=1e-9,
                         dense_output=True)
         assert sol.success
         steps = round((t1 - t0) / h)
@@ -195,8 +203,8 @@ def dp_loop(vessel: VesselSpec, duration: float, h: float, params: dict[str, dic
 
 def test_dp_holds_station_in_current_and_reaches_setpoint_steps(supply: VesselSpec) -> None:
     """The supply_dp case: 0.5 m/s current from the start, 10 m north, 10 m east, 20 deg heading."""
-    from components.controller import ControllerBlock
-    from components.dp_pid import DPPidController
+    from seafmu.components.controller import ControllerBlock
+    from seafmu.components.dp_pid import DPPidController
 
     assert isinstance(ControllerBlock(supply, full_params(ControllerBlock.interface(supply), {})),
                       DPPidController)

@@ -8,10 +8,10 @@ import math
 import numpy as np
 import pytest
 
-from components.kinematics import J
-from components.thrusters import max_thrust, speed_to_thrust, thrust_to_speed
-from components.vessel_model import VesselModel
-from components.vessel_spec import VesselSpec, bundled_vessels, load_vessel
+from seafmu.components.kinematics import J
+from seafmu.components.thrusters import max_thrust, speed_to_thrust, thrust_to_speed
+from seafmu.components.vessel_model import VesselModel
+from seafmu.components.vessel_spec import VesselSpec, bundled_vessels, load_vessel
 
 PUBLISHED_DL = np.array([-34.5733, -0.3354, 0.0408, -2.7048, -12.314, 0.4557])
 PUBLISHED_DQ = np.array([625.43, 945.1, 2268.3, 1118.8, 3867.7, 942.1947])
@@ -35,11 +35,33 @@ def neutral(spec: VesselSpec) -> VesselSpec:
 
 # -- data files ------------------------------------------------------------------------------------
 def test_bundled_files_load_with_provenance() -> None:
-    assert {"amv_osf", "minerva2", "minerva2_published_damping"} <= set(bundled_vessels())
-    for name in ("amv_osf", "minerva2", "minerva2_published_damping"):
+    assert {"amv_osf", "minerva2", "minerva2_published_damping", "supply"} <= set(bundled_vessels())
+    for name in ("amv_osf", "minerva2", "minerva2_published_damping", "supply"):
         v = load_vessel(name)
         assert v.provenance["mass_matrix"] and v.provenance["added_mass"]
         assert all(v.provenance[f"thrusters.units[{i}].k_forward"] for i in range(v.thrusters.count))
+
+
+def _bare_numbers(node: object, path: str) -> list[str]:
+    """Numbers in a vessel file that are not the value of a {value, source} pair."""
+    if isinstance(node, dict):
+        if "value" in node:
+            return [] if node.get("source") else [f"{path} (no source)"]
+        return [p for k, v in node.items() for p in _bare_numbers(v, f"{path}.{k}")]
+    if isinstance(node, list):
+        return [p for i, v in enumerate(node) for p in _bare_numbers(v, f"{path}[{i}]")]
+    return [path] if isinstance(node, int | float) and not isinstance(node, bool) else []
+
+
+@pytest.mark.parametrize("name", ["amv_osf", "minerva2", "minerva2_published_damping", "supply"])
+def test_every_number_in_a_vessel_file_has_a_source(name: str) -> None:
+    import yaml
+
+    from components.vessel_spec import vessel_path
+
+    doc = yaml.safe_load(vessel_path(name).read_text())
+    doc.pop("dof")  # the model's dimension, not a physical number
+    assert _bare_numbers(doc, name) == []
 
 
 def test_minerva_files_differ_only_in_negative_linear_damping() -> None:
