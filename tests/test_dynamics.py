@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from components.block import full_params
-from components.controller import ControllerBlock
-from components.dynamics import (
+from seafmu.components.block import full_params
+from seafmu.components.controller import ControllerBlock
+from seafmu.components.dynamics import (
     J,
     coriolis_force,
     coriolis_kron,
@@ -25,9 +25,9 @@ from components.dynamics import (
     tzyx_inv,
     wrap_angle,
 )
-from components.observer import ObserverBlock
-from components.vessel_model import VesselModel
-from components.vessel_spec import VesselSpec, load_vessel
+from seafmu.components.observer import ObserverBlock
+from seafmu.components.vessel_model import VesselModel
+from seafmu.components.vessel_spec import VesselSpec, load_vessel
 
 RNG = np.random.default_rng(7)
 
