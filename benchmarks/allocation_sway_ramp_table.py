@@ -20,9 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
-from components.allocation import METHODS, AllocatorBlock
-from components.block import full_params
-from components.vessel_spec import load_vessel
+from seafmu.components.allocation import METHODS, AllocatorBlock
+from seafmu.components.block import full_params
+from seafmu.components.vessel_spec import load_vessel
 from seafmu.master import RunResult, run
 from seafmu.scenario import Scenario, load_scenario
 

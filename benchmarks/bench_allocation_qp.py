@@ -22,10 +22,10 @@ from collections.abc import Callable
 
 import numpy as np
 
-from components.allocation import METHODS, AllocatorBlock, QPAllocator
-from components.block import full_params
-from components.thrusters import max_thrust, thruster_matrix
-from components.vessel_spec import load_vessel
+from seafmu.components.allocation import METHODS, AllocatorBlock, QPAllocator
+from seafmu.components.block import full_params
+from seafmu.components.thrusters import max_thrust, thruster_matrix
+from seafmu.components.vessel_spec import load_vessel
 
 SCALE = np.array([300.0, 250.0, 300.0, 60.0, 80.0, 300.0])  # N, N.m: inside the capability
 

@@ -18,7 +18,7 @@ import time
 
 import numpy as np
 
-from components.vessel_spec import load_vessel
+from seafmu.components.vessel_spec import load_vessel
 from seafmu.identification.fitting import FitResult
 from seafmu.identification.maneuver import (
     add_sensor_noise,

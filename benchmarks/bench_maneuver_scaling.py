@@ -46,7 +46,7 @@ def _rss_mb() -> float:
 
 def child(path: str, vessel_name: str, method: str) -> None:
     """Identify one log in this (fresh) process; print one JSON line with the figures."""
-    from components.vessel_spec import load_vessel
+    from seafmu.components.vessel_spec import load_vessel
     from seafmu.identification.maneuver import identify_maneuver, load_maneuver_csv
 
     vessel = load_vessel(vessel_name)
@@ -68,7 +68,7 @@ def child(path: str, vessel_name: str, method: str) -> None:
 
 def make_log(rows: int, vessel_name: str, dt: float, noise: float, folder: Path) -> Path:
     """The plant-made log (max rows) as a CSV in the folder."""
-    from components.vessel_spec import load_vessel
+    from seafmu.components.vessel_spec import load_vessel
     from seafmu.identification.maneuver import add_sensor_noise, simulate_maneuver, write_maneuver_csv
 
     vessel = load_vessel(vessel_name)

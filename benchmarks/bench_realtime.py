@@ -23,9 +23,9 @@ from pathlib import Path
 
 import yaml
 
-from hardware.pacing import Pacer, PacingStats
-from hardware.profile import load_profile
 from seafmu.build import build_fmu
+from seafmu.hardware.pacing import Pacer, PacingStats
+from seafmu.hardware.profile import load_profile
 from seafmu.master import run
 from seafmu.scenario import load_scenario
 
@@ -70,7 +70,7 @@ def main() -> None:
         with tempfile.TemporaryDirectory() as tmp:
             hil = load_scenario(_hil_scenario(Path(tmp), args.duration))
             proc = subprocess.Popen(
-                [sys.executable, "-m", "hardware.emulator", "minerva2",
+                [sys.executable, "-m", "seafmu.hardware.emulator", "minerva2",
                  "--serial", f"pty:{profile.serial.url}", "--can", f"slcan:pty:{profile.can.channel}",
                  "--scenario", "minerva2_dp"],
                 cwd=REPO, stdout=subprocess.PIPE, text=True,

@@ -99,13 +99,13 @@ class Block(ABC):
 
     def export_state(self) -> dict[str, Any]:
         """The whole internal state as a tree of plain data (``components.state.capture``)."""
-        from components.state import capture
+        from .state import capture
 
         return capture(self)
 
     def import_state(self, state: dict[str, Any]) -> None:
         """Write a tree from ``export_state`` back into this block, checked; all or nothing."""
-        from components.state import restore
+        from .state import restore
 
         restore(self, state)
 

@@ -36,8 +36,10 @@ BIT_GENERATORS: dict[str, type] = {
     "PCG64": np.random.PCG64, "PCG64DXSM": np.random.PCG64DXSM, "MT19937": np.random.MT19937,
     "Philox": np.random.Philox, "SFC64": np.random.SFC64,
 }
-CONFIG_MODULES = ("components.vessel_spec",)
-STATE_PACKAGE = "components."
+# This package's import name: "seafmu.components" when installed, "<build package>.components" in an FMU.
+_PACKAGE = __name__.rpartition(".")[0]
+CONFIG_MODULES = (f"{_PACKAGE}.vessel_spec",)
+STATE_PACKAGE = f"{_PACKAGE}."
 _MISSING = object()
 
 

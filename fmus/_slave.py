@@ -58,10 +58,10 @@ import numpy as np
 from pythonfmu import Fmi2Causality, Fmi2Slave, Fmi2Variability, Integer, Real, String
 from pythonfmu.enums import Fmi2Initial, Fmi2Status
 
-from components.block import Block, Interface, Signal
-from components.state import StateError
-from components.vessel_spec import VesselSpec, load_vessel
-from fmus import _state
+from ..components.block import Block, Interface, Signal
+from ..components.state import StateError
+from ..components.vessel_spec import VesselSpec, load_vessel
+from . import _state
 
 VESSEL_FILE = "vessel_file"
 MAX_STEP = 10.0  # s: the largest communication step doStep accepts (0 < h <= MAX_STEP)
@@ -247,7 +247,8 @@ class BlockSlave(Fmi2Slave):
     def _bundled_vessel(self) -> str:
         """This FMU's own vessel file: ``components`` may have been imported from another seafmu
         FMU's folder, which the host may have removed since (see the generated script)."""
-        own = os.path.join(self.resources or "", "components", "vessels", f"{self.VESSEL}.yaml")
+        bundle = __name__.split(".")[0]  # the build's package name inside an FMU (seafmu/build.py)
+        own = os.path.join(self.resources or "", bundle, "components", "vessels", f"{self.VESSEL}.yaml")
         return own if self.resources and os.path.isfile(own) else self.VESSEL
 
     def _register_parameter(self, p: Any) -> None:

@@ -1,7 +1,7 @@
 """The allocator FMU: thrust allocation: shaft speed commands from the generalised force."""
 
-from components.allocation import AllocatorBlock
-from fmus._slave import BlockSlave
+from ..components.allocation import AllocatorBlock
+from ._slave import BlockSlave
 
 
 class AllocatorSlave(BlockSlave):

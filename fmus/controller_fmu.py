@@ -1,7 +1,7 @@
 """The controller FMU: DP / autopilot: generalised force from estimates and setpoints."""
 
-from components.controller import ControllerBlock
-from fmus._slave import BlockSlave
+from ..components.controller import ControllerBlock
+from ._slave import BlockSlave
 
 
 class ControllerSlave(BlockSlave):

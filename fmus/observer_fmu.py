@@ -1,7 +1,7 @@
 """The observer FMU: EKF: position, attitude, velocity and bias estimates from the plant's sensors."""
 
-from components.observer import ObserverBlock
-from fmus._slave import BlockSlave
+from ..components.observer import ObserverBlock
+from ._slave import BlockSlave
 
 
 class ObserverSlave(BlockSlave):

@@ -1,7 +1,7 @@
 """The plant FMU: vessel dynamics, thrusters, sensors and environment."""
 
-from components.plant import PlantBlock
-from fmus._slave import BlockSlave
+from ..components.plant import PlantBlock
+from ._slave import BlockSlave
 
 
 class PlantSlave(BlockSlave):

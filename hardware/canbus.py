@@ -29,7 +29,7 @@ import cantools
 import numpy as np
 from cantools.database.errors import DecodeError
 
-from hardware.plausibility import violation
+from .plausibility import violation
 
 FAULT_OVERCURRENT, FAULT_OVERTEMPERATURE, FAULT_COMMAND_TIMEOUT, FAULT_HARDWARE = 1, 2, 4, 8
 _FAULT_SIGNALS = (

@@ -6,15 +6,15 @@ import argparse
 
 
 def _cmd_emulate(args: argparse.Namespace) -> int:
-    from hardware.emulator import run_args
+    from .emulator import run_args
 
     return run_args(args)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add ``emulate VESSEL --serial PORT --can INTERFACE:CHANNEL`` to seafmu's subcommands."""
-    from hardware.emulator import __doc__ as doc
-    from hardware.emulator import build_parser
+    from .emulator import __doc__ as doc
+    from .emulator import build_parser
 
     p = subparsers.add_parser(
         "emulate",

@@ -33,7 +33,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from hardware.canbus import FAULT_COMMAND_TIMEOUT, Command
+from .canbus import FAULT_COMMAND_TIMEOUT, Command
 
 
 class CommandSupervisor:

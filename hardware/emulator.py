@@ -37,16 +37,16 @@ from typing import Any
 
 import numpy as np
 
-from components.plant import PlantBlock
-from components.vessel_spec import load_vessel
-from hardware.canbus import CanFrameError, Command
-from hardware.drive import CommandSupervisor
-from hardware.link import make_thruster_codec, sensor_mapping
-from hardware.nmea import NmeaCodec
-from hardware.pacing import Pacer
-from hardware.profile import CanConfig, HardwareProfile, SerialConfig, load_profile
-from hardware.ptybridge import NullModem
-from hardware.transport import CanPort, SerialLines
+from ..components.plant import PlantBlock
+from ..components.vessel_spec import load_vessel
+from .canbus import CanFrameError, Command
+from .drive import CommandSupervisor
+from .link import make_thruster_codec, sensor_mapping
+from .nmea import NmeaCodec
+from .pacing import Pacer
+from .profile import CanConfig, HardwareProfile, SerialConfig, load_profile
+from .ptybridge import NullModem
+from .transport import CanPort, SerialLines
 
 log = logging.getLogger("seafmu.hardware.emulator")
 

@@ -60,15 +60,15 @@ from typing import Any
 import numpy as np
 from cantools.database.errors import EncodeError
 
-from components.block import Interface, Signal
-from components.thrusters import speed_to_thrust
-from components.vessel_spec import VesselSpec, load_vessel, state_unit
-from hardware.canbus import FAULT_COMMAND_TIMEOUT, CanFrameError, Command, Feedback, ThrusterCodec, make_codec
-from hardware.nmea import EXTRA_CHANNELS, SENTENCES, NmeaCodec, NmeaError, check_mapping, default_sentences
-from hardware.pacing import Pacer, PacingStats
-from hardware.profile import HardwareProfile, load_profile
-from hardware.recording import Recorder, trial_meta
-from hardware.transport import CanPort, SerialLines
+from ..components.block import Interface, Signal
+from ..components.thrusters import speed_to_thrust
+from ..components.vessel_spec import VesselSpec, load_vessel, state_unit
+from .canbus import FAULT_COMMAND_TIMEOUT, CanFrameError, Command, Feedback, ThrusterCodec, make_codec
+from .nmea import EXTRA_CHANNELS, SENTENCES, NmeaCodec, NmeaError, check_mapping, default_sentences
+from .pacing import Pacer, PacingStats
+from .profile import HardwareProfile, load_profile
+from .recording import Recorder, trial_meta
+from .transport import CanPort, SerialLines
 
 log = logging.getLogger("seafmu.hardware")
 

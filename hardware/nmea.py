@@ -42,8 +42,8 @@ from datetime import UTC, datetime
 import pynmea2
 from pynmea2.types.proprietary.nor import NOR
 
-from components.vessel_spec import SensorSpec
-from hardware.plausibility import check_channels, violation
+from ..components.vessel_spec import SensorSpec
+from .plausibility import check_channels, violation
 
 KNOT = 1852.0 / 3600.0  # m/s
 _A = 6378137.0  # WGS-84 semi-major axis, m

@@ -33,8 +33,8 @@ def _cmd_build(args: argparse.Namespace) -> int:
     for r in build_all(vessels, force=args.force):
         print(f"{'built  ' if r.rebuilt else 'current'} {r.path}")
     for profile in args.link or []:
-        from hardware.link_fmu import build_link_fmu
         from seafmu.build import build_dir
+        from seafmu.hardware.link_fmu import build_link_fmu
 
         print(f"built   {build_link_fmu(profile, build_dir())}")
     return 0
@@ -142,13 +142,13 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("--inprocess", action="store_true", help="run the components without FMI (comparison)")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     r.set_defaults(fn=_cmd_run)
-    from hardware.cli import register as register_hardware
+    from seafmu.hardware.cli import register as register_hardware
     from seafmu.identification.cli import register as register_identification
 
     register_identification(sub)
     register_hardware(sub)
     args = parser.parse_args(argv)
-    from components.vessel_spec import VesselFileError
+    from seafmu.components.vessel_spec import VesselFileError
     from seafmu.identification.trial import TrialError
     from seafmu.master import SimulationError
     from seafmu.outdir import OutputFolderError

@@ -65,7 +65,7 @@ def plot_trajectory(result: RunResult, path: Path) -> bool:
 
 
 def plot_states(result: RunResult, path: Path) -> bool:
-    from components.vessel_spec import ETA_NAMES, NU_NAMES
+    from seafmu.components.vessel_spec import ETA_NAMES, NU_NAMES
 
     names = [n for n in ETA_NAMES[6] + NU_NAMES[6] if _find(result, n)]
     eta = [n for n in names if n in ETA_NAMES[6]]

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import pytest
 
-from components.vessel_spec import VesselSpec, load_vessel
 from seafmu.build import build_all
+from seafmu.components.vessel_spec import VesselSpec, load_vessel
 
 
 @pytest.fixture(scope="module")

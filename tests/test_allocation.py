@@ -8,16 +8,16 @@ from typing import NamedTuple
 import numpy as np
 import pytest
 
-from components.allocation import (
+from seafmu.components.allocation import (
     AllocatorBlock,
     drop_thruster,
     priority_allocation,
     pseudo_inverse_allocation,
     thrust_capability,
 )
-from components.block import full_params
-from components.thrusters import max_thrust, speed_to_thrust, thruster_matrix
-from components.vessel_spec import VesselSpec
+from seafmu.components.block import full_params
+from seafmu.components.thrusters import max_thrust, speed_to_thrust, thruster_matrix
+from seafmu.components.vessel_spec import VesselSpec
 
 
 def block(vessel: VesselSpec, **params: object) -> AllocatorBlock:

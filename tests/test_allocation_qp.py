@@ -8,7 +8,7 @@ import pickle
 import numpy as np
 import pytest
 
-from components.allocation import (
+from seafmu.components.allocation import (
     METHODS,
     AllocatorBlock,
     QPAllocator,
@@ -18,9 +18,9 @@ from components.allocation import (
     pseudo_inverse_allocation,
     qp_allocation,
 )
-from components.block import full_params
-from components.thrusters import max_thrust, speed_to_thrust, thruster_matrix
-from components.vessel_spec import VesselSpec, load_vessel
+from seafmu.components.block import full_params
+from seafmu.components.thrusters import max_thrust, speed_to_thrust, thruster_matrix
+from seafmu.components.vessel_spec import VesselSpec, load_vessel
 
 H = 0.05
 

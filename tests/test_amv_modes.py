@@ -9,11 +9,11 @@ import math
 import numpy as np
 import pytest
 
-from components.allocation import AllocatorBlock
-from components.amv_land import LandModel, LandParams, land_step, land_velocity
-from components.block import full_params
-from components.controller import ControllerBlock
-from components.vessel_spec import VesselSpec
+from seafmu.components.allocation import AllocatorBlock
+from seafmu.components.amv_land import LandModel, LandParams, land_step, land_velocity
+from seafmu.components.block import full_params
+from seafmu.components.controller import ControllerBlock
+from seafmu.components.vessel_spec import VesselSpec
 
 H = 0.05
 

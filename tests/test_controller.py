@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-from components.block import full_params
-from components.controller import ControllerBlock, restoring_stiffness
-from components.kinematics import J, rzyx, wrap_angle
-from components.reference_model import ReferenceModel, _exact_coefficients
-from components.vessel_model import VesselModel
-from components.vessel_spec import VesselSpec
+from seafmu.components.block import full_params
+from seafmu.components.controller import ControllerBlock, restoring_stiffness
+from seafmu.components.kinematics import J, rzyx, wrap_angle
+from seafmu.components.reference_model import ReferenceModel, _exact_coefficients
+from seafmu.components.vessel_model import VesselModel
+from seafmu.components.vessel_spec import VesselSpec
 
 
 def controller(vessel: VesselSpec, **params: object) -> ControllerBlock:

@@ -27,12 +27,12 @@ from fmpy.fmi2 import (
 )
 from fmpy.logging import addLoggerProxy
 
-from components.block import full_params
-from components.state import StateError, capture, restore
-from components.vessel_spec import load_vessel
-from fmus import _state
-from fmus.registry import BLOCKS
 from seafmu.build import KINDS
+from seafmu.components.block import full_params
+from seafmu.components.state import StateError, capture, restore
+from seafmu.components.vessel_spec import load_vessel
+from seafmu.fmus import _state
+from seafmu.fmus.registry import BLOCKS
 from seafmu.master import run
 from seafmu.scenario import load_scenario
 

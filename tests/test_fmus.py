@@ -48,9 +48,15 @@ def test_build_is_incremental(built_fmus: dict) -> None:
 
 def test_fmu_bundles_components(built_fmus: dict) -> None:
     names = zipfile.ZipFile(built_fmus[("minerva2", "plant")]).namelist()
-    assert "resources/components/plant.py" in names
-    assert "resources/components/vessels/minerva2.yaml" in names
-    assert "resources/minerva2_plant_fmu.py" in names
+    bundles = {n.split("/")[1] for n in names if n.startswith("resources/seafmu_fmu_")}
+    assert len(bundles) == 1  # one package name, unique to this build
+    (bundle,) = bundles
+    assert f"resources/{bundle}/components/plant.py" in names
+    assert f"resources/{bundle}/components/vessels/minerva2.yaml" in names
+    assert f"resources/{bundle}/fmus/_slave.py" in names
+    assert not any(n.startswith(("resources/components/", "resources/fmus/")) for n in names)
+    assert [n for n in names if n.startswith("resources/minerva2_plant_fmu_")]
+    assert "resources/requirements.txt" in names
     assert not any("__pycache__" in n for n in names)
 
 
@@ -140,7 +146,7 @@ def test_bad_vessel_file_parameter(built_fmus: dict, tmp_path: Path) -> None:
     with pytest.raises(SimulationError, match=r"missing\.yaml"):
         FmuUnit(inst, built_fmus[("minerva2", "plant")], [], log).initialize(np.zeros(0))
     # a vessel file with another interface (2 screws) is refused, not silently mis-wired
-    from components.vessel_spec import vessel_path
+    from seafmu.components.vessel_spec import vessel_path
 
     inst = _instance("minerva2", "plant", {"vessel_file": str(vessel_path("amv_osf"))})
     with pytest.raises(SimulationError, match="another interface"):

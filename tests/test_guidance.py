@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from components.guidance import LegProfile, PathGuidance, lawnmower, parse_waypoints
+from seafmu.components.guidance import LegProfile, PathGuidance, lawnmower, parse_waypoints
 
 
 def test_lawnmower_geometry_six_lines_four_metres_apart() -> None:

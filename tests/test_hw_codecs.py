@@ -11,10 +11,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from components.vessel_spec import load_vessel
-from hardware.canbus import CanFrameError, Command, Feedback, Nmea2000Codec, SeafmuCodec
-from hardware.nmea import SENTENCES, NmeaCodec, NmeaError, default_sentences
-from hardware.profile import HERE
+from seafmu.components.vessel_spec import load_vessel
+from seafmu.hardware.canbus import CanFrameError, Command, Feedback, Nmea2000Codec, SeafmuCodec
+from seafmu.hardware.nmea import SENTENCES, NmeaCodec, NmeaError, default_sentences
+from seafmu.hardware.profile import HERE
 
 N_MAX = np.array([20.0, 20.0, 20.0, 20.0, 20.0, 20.0, 2.3])
 CODEC = NmeaCodec(63.44, 10.40)

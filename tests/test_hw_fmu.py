@@ -13,11 +13,11 @@ from fmpy import extract, read_model_description
 from fmpy.fmi2 import FMU2Slave
 from fmpy.validation import validate_fmu
 
-from hardware.cli import register
-from hardware.emulator import VesselEmulator
-from hardware.link_fmu import build_link_fmu
-from hardware.profile import load_profile
-from hardware.ptybridge import NullModem
+from seafmu.hardware.cli import register
+from seafmu.hardware.emulator import VesselEmulator
+from seafmu.hardware.link_fmu import build_link_fmu
+from seafmu.hardware.profile import load_profile
+from seafmu.hardware.ptybridge import NullModem
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -78,7 +78,8 @@ def test_emulate_subcommand_and_its_ready_line() -> None:
     assert args.vessel == "amv_osf" and args.set == ["seed=3"] and callable(args.fn)
 
     proc = subprocess.Popen(
-        [sys.executable, "-m", "hardware.emulator", "amv_osf", "--serial", "pty", "--can", "slcan:pty"],
+        [sys.executable, "-m", "seafmu.hardware.emulator", "amv_osf", "--serial", "pty",
+         "--can", "slcan:pty"],
         cwd=REPO,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
@@ -93,7 +94,7 @@ def test_emulate_subcommand_and_its_ready_line() -> None:
         proc.send_signal(signal.SIGTERM)
         assert proc.wait(timeout=10) == 0
     bad = subprocess.run(
-        [sys.executable, "-m", "hardware.emulator", "minerva2", "--serial", "pty", "--can", "slcan"],
+        [sys.executable, "-m", "seafmu.hardware.emulator", "minerva2", "--serial", "pty", "--can", "slcan"],
         cwd=REPO,
         capture_output=True,
         text=True,

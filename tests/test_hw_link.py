@@ -15,11 +15,11 @@ import numpy as np
 import pytest
 import serial
 
-from hardware.canbus import Command
-from hardware.link import HardwareLink
-from hardware.nmea import NmeaCodec
-from hardware.profile import load_profile
-from hardware.ptybridge import NullModem
+from seafmu.hardware.canbus import Command
+from seafmu.hardware.link import HardwareLink
+from seafmu.hardware.nmea import NmeaCodec
+from seafmu.hardware.profile import load_profile
+from seafmu.hardware.ptybridge import NullModem
 from seafmu.identification.trial import load_trial
 
 VALUES = {
@@ -361,7 +361,7 @@ def test_run_with_an_unreachable_vessel_ends_in_one_line(tmp_path: Path) -> None
     import subprocess
     import sys
 
-    from hardware.profile import profile_path
+    from seafmu.hardware.profile import profile_path
 
     prof = tmp_path / "bad.yaml"
     text = profile_path("emulator_pty").read_text()

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 import yaml
 
-from components.vessel_spec import load_vessel
-from hardware.profile import load_profile
+from seafmu.components.vessel_spec import load_vessel
+from seafmu.hardware.profile import load_profile
 from seafmu.identification.maneuver import load_maneuver_csv
 from seafmu.identification.trial import load_trial
 from seafmu.master import run
@@ -52,7 +52,7 @@ def _emulator(tmp_path: Path) -> tuple[subprocess.Popen[str], dict[str, str]]:
         [
             sys.executable,
             "-m",
-            "hardware.emulator",
+            "seafmu.hardware.emulator",
             "minerva2",
             "--serial",
             f"pty:{SERIAL}",

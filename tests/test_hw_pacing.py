@@ -6,7 +6,7 @@ import time
 
 import pytest
 
-from hardware.pacing import Pacer
+from seafmu.hardware.pacing import Pacer
 
 
 def test_pacer_holds_the_wall_clock_and_catches_up_after_a_late_step() -> None:

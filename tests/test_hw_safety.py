@@ -40,14 +40,14 @@ import serial
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hardware.canbus import FAULT_COMMAND_TIMEOUT, Command, Feedback
-from hardware.drive import CommandSupervisor
-from hardware.emulator import VesselEmulator
-from hardware.link import CLOSE_ROUNDS, HardwareLink, LinkClosed, close_all_links
-from hardware.nmea import NORTEK_INVALID, NmeaCodec, NmeaError
-from hardware.plausibility import LIMITS, check_channels, limits_markdown
-from hardware.profile import HardwareProfile, load_profile
-from hardware.ptybridge import NullModem
+from seafmu.hardware.canbus import FAULT_COMMAND_TIMEOUT, Command, Feedback
+from seafmu.hardware.drive import CommandSupervisor
+from seafmu.hardware.emulator import VesselEmulator
+from seafmu.hardware.link import CLOSE_ROUNDS, HardwareLink, LinkClosed, close_all_links
+from seafmu.hardware.nmea import NORTEK_INVALID, NmeaCodec, NmeaError
+from seafmu.hardware.plausibility import LIMITS, check_channels, limits_markdown
+from seafmu.hardware.profile import HardwareProfile, load_profile
+from seafmu.hardware.ptybridge import NullModem
 from seafmu.identification.trial import load_trial
 
 REPO = Path(__file__).resolve().parents[1]
@@ -320,8 +320,8 @@ def test_frozen_alive_counter_is_detected_and_an_enable_edge_restarts() -> None:
 CHILD = r"""
 import sys
 import numpy as np
-from hardware.link import HardwareLink
-from hardware.profile import load_profile
+from seafmu.hardware.link import HardwareLink
+from seafmu.hardware.profile import load_profile
 
 serial_url, can_channel, record, speed = sys.argv[1], sys.argv[2], sys.argv[3], float(sys.argv[4])
 prof = load_profile("emulator_pty").with_overrides(

@@ -7,7 +7,7 @@ import threading
 import time
 from collections import Counter
 
-from hardware.transport import SerialLines
+from seafmu.hardware.transport import SerialLines
 
 
 def test_socket_url_delivers_every_line_each_poll() -> None:

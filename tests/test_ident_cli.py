@@ -72,8 +72,8 @@ def test_errors_are_one_line_and_exit_2(tmp_path: Path, capsys: pytest.CaptureFi
 def test_write_back_closes_the_loop(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """Identified added mass and damping go into a vessel file that the plant then simulates."""
     pytest.importorskip("seafmu.identification.writeback")
-    from components.vessel_model import VesselModel
-    from components.vessel_spec import load_vessel
+    from seafmu.components.vessel_model import VesselModel
+    from seafmu.components.vessel_spec import load_vessel
 
     trial_yaml = write_trial(demo_trial("added_mass", noise=0.01, seed=2), tmp_path / "trial")
     out_vessel = tmp_path / "amv_identified.yaml"
@@ -114,7 +114,7 @@ def test_write_back_closes_the_loop(tmp_path: Path, capsys: pytest.CaptureFixtur
 def test_a_maneuver_log_is_a_valid_trial(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """A multi-DOF log in the `seafmu run` column layout goes to the maneuver identification."""
     man = pytest.importorskip("seafmu.identification.maneuver")
-    from components.vessel_spec import load_vessel
+    from seafmu.components.vessel_spec import load_vessel
 
     vessel = load_vessel("amv_osf")
     data, _ = man.simulate_maneuver(vessel, duration=120.0, dt=0.1, seed=1)
@@ -141,7 +141,7 @@ def _amv_maneuver_trial(folder: Path, yaw_unit: str = "deg", extra: str = "") ->
     import dataclasses
 
     man = pytest.importorskip("seafmu.identification.maneuver")
-    from components.vessel_spec import load_vessel
+    from seafmu.components.vessel_spec import load_vessel
 
     vessel = load_vessel("amv_osf")
     DQ = vessel.D_Q.copy()
@@ -180,7 +180,7 @@ def test_maneuver_units_plots_write_back_and_replay(tmp_path: Path,
                                                     capsys: pytest.CaptureFixture[str]) -> None:
     """deg and deg/s columns are converted; the report has overlay and residual plots; the written
     vessel file simulates the log better than the shipped one when the inputs are replayed."""
-    from components.vessel_spec import load_vessel
+    from seafmu.components.vessel_spec import load_vessel
     from seafmu.identification.diagnosis import maneuver_data
     from seafmu.identification.trial import load_trial
 

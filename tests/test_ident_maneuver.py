@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from components.kinematics import m2c
-from components.vessel_model import VesselModel
-from components.vessel_spec import load_vessel
+from seafmu.components.kinematics import m2c
+from seafmu.components.vessel_model import VesselModel
+from seafmu.components.vessel_spec import load_vessel
 from seafmu.identification.fitting import FitResult
 from seafmu.identification.maneuver import (
     ManeuverData,

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from components.vessel_spec import VesselSpec, load_vessel
+from seafmu.components.vessel_spec import VesselSpec, load_vessel
 from seafmu.identification.diagnosis import diagnose
 from seafmu.identification.maneuver import add_sensor_noise, simulate_maneuver, write_maneuver_csv
 from seafmu.identification.trial import Trial, csv_trial

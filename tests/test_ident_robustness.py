@@ -19,7 +19,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.optimize import least_squares
 
-from components.vessel_spec import VesselFileError, load_vessel
+from seafmu.components.vessel_spec import VesselFileError, load_vessel
 from seafmu.identification import arrowlm
 from seafmu.identification.cli import main, one_line
 from seafmu.identification.diagnosis import identify

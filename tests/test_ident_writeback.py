@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from components.plant import PlantBlock
-from components.vessel_spec import VesselFileError, load_vessel, vessel_path
+from seafmu.components.plant import PlantBlock
+from seafmu.components.vessel_spec import VesselFileError, load_vessel, vessel_path
 from seafmu.identification import fitting
 from seafmu.identification.fitting import FitResult
 from seafmu.identification.maneuver import identify_maneuver, simulate_maneuver

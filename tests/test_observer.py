@@ -9,11 +9,11 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from components.block import full_params
-from components.kinematics import wrap_angle
-from components.observer import ObserverBlock
-from components.vessel_model import VesselModel
-from components.vessel_spec import VesselSpec, load_vessel
+from seafmu.components.block import full_params
+from seafmu.components.kinematics import wrap_angle
+from seafmu.components.observer import ObserverBlock
+from seafmu.components.vessel_model import VesselModel
+from seafmu.components.vessel_spec import VesselSpec, load_vessel
 
 
 def observer(vessel: VesselSpec, **params: object) -> ObserverBlock:

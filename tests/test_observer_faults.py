@@ -10,13 +10,13 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from components.block import full_params
-from components.kinematics import rzyx, wrap_angle
-from components.observer import ObserverBlock, chi2_quantile
-from components.plant import PlantBlock
-from components.sensors import mag_heading_error
-from components.vessel_model import VesselModel
-from components.vessel_spec import VesselSpec, load_vessel
+from seafmu.components.block import full_params
+from seafmu.components.kinematics import rzyx, wrap_angle
+from seafmu.components.observer import ObserverBlock, chi2_quantile
+from seafmu.components.plant import PlantBlock
+from seafmu.components.sensors import mag_heading_error
+from seafmu.components.vessel_model import VesselModel
+from seafmu.components.vessel_spec import VesselSpec, load_vessel
 
 DEPTH = 5.0
 

@@ -9,10 +9,10 @@ import math
 import numpy as np
 import pytest
 
-from components.block import Block
-from components.plant import PlantBlock
-from components.vessel_model import VesselModel
-from components.vessel_spec import VesselSpec, load_vessel
+from seafmu.components.block import Block
+from seafmu.components.plant import PlantBlock
+from seafmu.components.vessel_model import VesselModel
+from seafmu.components.vessel_spec import VesselSpec, load_vessel
 
 # Appended by the environment/sensor-fault work (issue 5): new names only, after the old ones.
 ENV_PARAMS = [

@@ -29,7 +29,7 @@ BASE = {
 
 
 def _write(tmp_path: Path, doc: object) -> Path:
-    from components.vessel_spec import vessel_path
+    from seafmu.components.vessel_spec import vessel_path
 
     if isinstance(doc, dict) and doc.get("fmus", {}).get("plant", {}).get("parameters", {}).get(
             "vessel_file") == "AMV":

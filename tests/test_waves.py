@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 from scipy.integrate import quad
 
-from components.block import full_params
-from components.environment import GaussMarkovCurrent
-from components.plant import WAVE_STREAM, PlantBlock
-from components.vessel_model import VesselModel
-from components.vessel_spec import VesselSpec, load_vessel
-from components.waves import WaveField, WaveLoad, jonswap
+from seafmu.components.block import full_params
+from seafmu.components.environment import GaussMarkovCurrent
+from seafmu.components.plant import WAVE_STREAM, PlantBlock
+from seafmu.components.vessel_model import VesselModel
+from seafmu.components.vessel_spec import VesselSpec, load_vessel
+from seafmu.components.waves import WaveField, WaveLoad, jonswap
 
 
 def plant(vessel: VesselSpec, **params: object) -> PlantBlock:

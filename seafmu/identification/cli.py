@@ -83,7 +83,7 @@ def load(args: argparse.Namespace) -> Trial:
                              f"for a {trial.kind} trial")
         trial.baseline = args.baseline
     if trial.kind != "maneuver" and trial.vessel and (args.vessel or args.write_vessel):
-        from components.vessel_spec import load_vessel
+        from seafmu.components.vessel_spec import load_vessel
 
         check_vessel(trial, load_vessel(trial.vessel))
     return trial
@@ -125,7 +125,7 @@ def cmd_diagnose(args: argparse.Namespace) -> int:
 
 def _run(args: argparse.Namespace, diagnose: bool) -> int:
     """Shared body of both commands: load, fit, report, optional write-back and replay, print."""
-    from components.vessel_spec import VesselFileError
+    from seafmu.components.vessel_spec import VesselFileError
     from seafmu.identification import diagnosis as dg
     from seafmu.identification import report as rp
 
@@ -206,7 +206,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="seafmu", description="identification and diagnosis")
     register(parser.add_subparsers(dest="command", required=True))
     args = parser.parse_args(argv)
-    from components.vessel_spec import VesselFileError
+    from seafmu.components.vessel_spec import VesselFileError
 
     try:
         return int(args.fn(args))

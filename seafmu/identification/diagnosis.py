@@ -153,7 +153,7 @@ def fit_extension(trial: Trial, base: FitResult, effect: str) -> FitResult:
 def fit_maneuver(trial: Trial, method: str, effect: str | None = None,
                  start: dict[str, float] | None = None) -> FitResult:
     """Multi-DOF maneuver log: delegated to the maneuver module (Minerva 2 LS or output error)."""
-    from components.vessel_spec import load_vessel
+    from seafmu.components.vessel_spec import load_vessel
     from seafmu.identification.maneuver import identify_maneuver
 
     if not trial.vessel:
@@ -444,7 +444,7 @@ def write_vessel_file(trial: Trial, fit: FitResult, out_path: Path, method: str,
     name = vessel or trial.vessel
     if not name:
         return "write-back skipped: the trial names no vessel (trial 'vessel' or --vessel)", None
-    from components.vessel_spec import load_vessel
+    from seafmu.components.vessel_spec import load_vessel
     from seafmu.identification.writeback import write_back
 
     spec = load_vessel(name)

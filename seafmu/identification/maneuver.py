@@ -43,11 +43,11 @@ from typing import Any
 import numpy as np
 from scipy.signal import savgol_filter
 
-from components.allocation import allocation_matrix
-from components.plant import PlantBlock
-from components.thrusters import max_thrust, thrust_to_speed, thruster_matrix
-from components.vessel_model import VesselModel
-from components.vessel_spec import ETA_NAMES, NU_NAMES, TAU_NAMES, VesselSpec
+from seafmu.components.allocation import allocation_matrix
+from seafmu.components.plant import PlantBlock
+from seafmu.components.thrusters import max_thrust, thrust_to_speed, thruster_matrix
+from seafmu.components.vessel_model import VesselModel
+from seafmu.components.vessel_spec import ETA_NAMES, NU_NAMES, TAU_NAMES, VesselSpec
 from seafmu.identification import arrowlm, fitting
 from seafmu.identification.fitting import FitResult
 from seafmu.identification.trial import (

@@ -19,8 +19,8 @@ import dataclasses
 
 import numpy as np
 
-from components.plant import PlantBlock
-from components.vessel_spec import VesselSpec, load_vessel
+from seafmu.components.plant import PlantBlock
+from seafmu.components.vessel_spec import VesselSpec, load_vessel
 from seafmu.identification.trial import Run, Trial, make_trial
 
 # kind -> what the trial is (vessel, DOF, experiment)

@@ -25,8 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from components.vessel_model import VesselModel
-from components.vessel_spec import VesselSpec, load_vessel
+from seafmu.components.vessel_model import VesselModel
+from seafmu.components.vessel_spec import VesselSpec, load_vessel
 from seafmu.identification import timeseries
 from seafmu.identification.fitting import FitResult, nrmse
 from seafmu.identification.trial import DOF_INDEX, Trial

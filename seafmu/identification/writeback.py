@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from components.vessel_spec import VesselFileError, VesselSpec, load_vessel, vessel_path
+from seafmu.components.vessel_spec import VesselFileError, VesselSpec, load_vessel, vessel_path
 from seafmu.identification.fitting import FitResult
 
 # Model-matrix names (fits, the brief) -> vessel-file fields.
