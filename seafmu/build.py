@@ -24,6 +24,8 @@ from xml.etree import ElementTree as ET
 
 import pythonfmu
 
+from seafmu.unitdefs import UnitParseError, base_unit
+
 REPO = Path(__file__).resolve().parents[1]
 KINDS = ("plant", "observer", "controller", "allocator")
 VESSELS = ("minerva2", "amv_osf")
@@ -181,7 +183,8 @@ def build_fmu(vessel: str, kind: str, force: bool = False) -> BuildResult:
                 )
             finally:
                 sys.path.remove(str(root.parent))
-                for name in [m for m in sys.modules if m in (bundle, script.stem) or m.startswith(bundle + ".")]:
+                for name in [m for m in sys.modules
+                             if m in (bundle, script.stem) or m.startswith(bundle + ".")]:
                     del sys.modules[name]
             complete_model_description(Path(built), _signals_by_name(vessel, kind))
             os.replace(built, out)
@@ -222,7 +225,13 @@ def complete_model_description(fmu: Path, signals: dict, tool: str = "seafmu bui
     if units:
         ud = ET.Element("UnitDefinitions")
         for u in units:
-            ET.SubElement(ud, "Unit", name=u)
+            unit = ET.SubElement(ud, "Unit", name=u)
+            try:  # SI exponents (and factor) so that a host can convert; none for sqrt units
+                base = base_unit(u)
+            except UnitParseError:
+                base = None
+            if base is not None:
+                ET.SubElement(unit, "BaseUnit", base)
         # Schema order: CoSimulation, UnitDefinitions, TypeDefinitions, LogCategories, ...
         root.insert(_first_index(root, ("TypeDefinitions", "LogCategories", "DefaultExperiment",
                                         "VendorAnnotations", "ModelVariables")), ud)

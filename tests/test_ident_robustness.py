@@ -480,15 +480,14 @@ def _timed_fit(data, vessel) -> tuple[float, float]:  # type: ignore[no-untyped-
 def test_output_error_scales_linearly_with_the_log_length() -> None:
     """2 000 vs 8 000 rows with 5 s segments (112 segments at 8 000 rows): the dense Jacobian had
     one column per segment and state, so memory grew as rows^2 and MINPACK's QR as rows^3.
-    Generous bounds (a shared machine's timing is noisy): exponents below 1.5 (time) and 1.3
-    (memory); the dense version measured 2.0 and 1.9, this one 0.55 and 0.97."""
+    Asserted on memory only (tracemalloc: deterministic): exponent below 1.3; the dense version
+    measured 1.9, this one 0.97. Time is a benchmark's job (benchmarks/bench_maneuver_scaling.py
+    prints it), not a test's: on a shared machine a timing ratio is noise."""
     vessel = load_vessel("amv_osf")
     data, _ = simulate_maneuver(vessel, duration=799.9, dt=0.1, seed=3)
     small = data.select(slice(0, 2000))
     t_small, m_small = _timed_fit(small, vessel)
     t_big, m_big = _timed_fit(data, vessel)
     ratio = data.n / small.n
-    time_exp = math.log(t_big / t_small) / math.log(ratio)
     mem_exp = math.log(m_big / m_small) / math.log(ratio)
-    assert mem_exp < 1.3, (m_small, m_big, mem_exp)
-    assert time_exp < 1.5, (t_small, t_big, time_exp)
+    assert mem_exp < 1.3, (m_small, m_big, mem_exp, t_small, t_big)
