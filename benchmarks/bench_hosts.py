@@ -32,11 +32,10 @@ if engine == "seafmu":
     from seafmu.scenario import load_scenario
     run(load_scenario(scenario), mode="fmu", progress=False)
 elif engine == "seafmu-jacobi":
+    import dataclasses
     from seafmu.master import run
     from seafmu.scenario import load_scenario
-    sc = load_scenario(scenario)
-    sc.coupling = "jacobi"
-    run(sc, mode="fmu", progress=False)
+    run(dataclasses.replace(load_scenario(scenario), coupling="jacobi"), mode="fmu", progress=False)
 elif engine == "libcosim":
     from libcosimpy import CosimLogging
     from libcosimpy.CosimExecution import CosimExecution

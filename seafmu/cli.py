@@ -1,4 +1,4 @@
-"""The ``seafmu`` command: build, check and run scenarios.
+"""The ``seafmu`` command: build, check, run and export scenarios.
 
 Exit codes: 0 the run ended and its checks pass; 1 a check fails; 2 bad input or a failure (bad
 scenario, FMU error, missing file, output folder in use by another run), one line on stderr;
@@ -10,14 +10,16 @@ the run stops between two master steps, writes its results up to there and repor
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from seafmu.scenario import DEFAULT_SCENARIO
+from seafmu.scenario import COUPLINGS, DEFAULT_SCENARIO
 
 if TYPE_CHECKING:
     from seafmu.master import StopRequest
+    from seafmu.scenario import Scenario
 
 
 def one_line(text: str) -> str:
@@ -51,6 +53,50 @@ def _cmd_check(args: argparse.Namespace) -> int:
     return 0
 
 
+def _build_kinds(sc: Scenario) -> None:
+    """Build the scenario's seafmu FMUs whose sources changed (as ``run`` does), saying which."""
+    from seafmu.build import build_fmu
+
+    for inst in sc.instances:
+        if inst.kind is not None:
+            r = build_fmu(sc.vessel, inst.kind)
+            if r.rebuilt:
+                print(f"built {r.path}")
+
+
+def _cmd_export(args: argparse.Namespace) -> int:
+    from seafmu.export import (
+        Export,
+        ExportError,
+        check_exportable,
+        check_osp_target,
+        check_ssp_target,
+        export_osp,
+        export_ssp,
+    )
+    from seafmu.scenario import load_scenario
+
+    if not args.ssp and not args.osp:
+        raise ExportError("nothing to write: give --ssp FILE.ssp and/or --osp DIR")
+    sc = load_scenario(args.scenario)
+    check_exportable(sc)  # every input checked before anything is built or written
+    if args.ssp:
+        check_ssp_target(Path(args.ssp))
+    if args.osp:
+        check_osp_target(Path(args.osp))
+    _build_kinds(sc)
+    done = []
+    if args.ssp:
+        done.append(export_ssp(sc, Path(args.ssp)))
+    if args.osp:
+        done.append(export_osp(sc, Path(args.osp)))
+    result = Export.merged(done)
+    for f in result.files:
+        print(f"wrote {f}")
+    print(one_line(result.summary()))
+    return 0
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
     from seafmu.master import StopRequest, stop_on_signals
 
@@ -67,6 +113,8 @@ def _run(args: argparse.Namespace, stop: StopRequest) -> int:
     from seafmu.scenario import load_scenario
 
     sc = load_scenario(args.scenario)
+    if args.coupling:
+        sc = dataclasses.replace(sc, coupling=args.coupling)
     if stop.requested:
         print(f"seafmu: interrupted ({stop.name}) before the run started; nothing written", file=sys.stderr)
         return stop.exit_code
@@ -77,13 +125,7 @@ def _run(args: argparse.Namespace, stop: StopRequest) -> int:
         write_placeholder_report(sc.name, out)
         try:
             if mode == "fmu":
-                from seafmu.build import build_fmu
-
-                for inst in sc.instances:
-                    if inst.kind is not None:
-                        r = build_fmu(sc.vessel, inst.kind)
-                        if r.rebuilt:
-                            print(f"built {r.path}")
+                _build_kinds(sc)
             record = out / "recording" if any(i.hardware for i in sc.instances) else None
             csv = CsvStream(out / "results.csv")
             try:
@@ -103,7 +145,7 @@ def _run(args: argparse.Namespace, stop: StopRequest) -> int:
         write_summary(data, out / "summary.json")
         report = write_report(result, checks, data, out)  # last: a report means every file is complete
     print(f"{sc.name}: {result.t_end:g} s simulated in {result.wall_time:.2f} s "
-          f"(real-time factor {result.realtime_factor:.0f}, mode {mode})")
+          f"(real-time factor {result.realtime_factor:.0f}, mode {mode}, {sc.coupling} coupling)")
     for name, us in data["us_per_step"].items():
         print(f"  {name:<12} {us:8.1f} µs/step")
     if result.pacing_summary:
@@ -141,7 +183,17 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("-o", "--output", help="output folder (default: results/<scenario>)")
     r.add_argument("--inprocess", action="store_true", help="run the components without FMI (comparison)")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    r.add_argument("--coupling", choices=COUPLINGS,
+                   help="override the scenario's coupling: gauss-seidel (each FMU reads the newest "
+                   "outputs) or jacobi (every FMU steps with the outputs of the previous step, as libcosim "
+                   "and ecos do)")
     r.set_defaults(fn=_cmd_run)
+    x = sub.add_parser("export", help="write a scenario for other engines: SSP 1.0 file and/or OSP folder")
+    x.add_argument("scenario")
+    x.add_argument("--ssp", metavar="FILE.ssp",
+                   help="write an SSP 1.0 archive (FMUs, connections, parameters)")
+    x.add_argument("--osp", metavar="DIR", help="write OspSystemStructure.xml and the FMUs into DIR")
+    x.set_defaults(fn=_cmd_export)
     from seafmu.hardware.cli import register as register_hardware
     from seafmu.identification.cli import register as register_identification
 
@@ -149,6 +201,7 @@ def main(argv: list[str] | None = None) -> int:
     register_hardware(sub)
     args = parser.parse_args(argv)
     from seafmu.components.vessel_spec import VesselFileError
+    from seafmu.export import ExportError
     from seafmu.identification.trial import TrialError
     from seafmu.master import SimulationError
     from seafmu.outdir import OutputFolderError
@@ -156,7 +209,8 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         return args.fn(args)
-    except (ScenarioError, SimulationError, VesselFileError, TrialError, OutputFolderError, OSError) as exc:
+    except (ScenarioError, SimulationError, VesselFileError, TrialError, OutputFolderError, ExportError,
+            OSError) as exc:
         print(f"seafmu: error: {one_line(str(exc))}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

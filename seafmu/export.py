@@ -2,13 +2,15 @@
 
 Both formats carry the FMUs, the connections, the parameter values (SI, as the scenario resolved
 them) and each FMU's step size (``step × step_multiple``). What they cannot carry is written
-beside them and named in one line:
+beside them and named in one line (``Export.summary``):
 * timed events → a libcosim scenario file (JSON; ``CosimExecution.load_scenario``), which OSP's
-  ``cosim run`` and libcosimpy read; ecos gets the same events from the JSON via
-  ``EcosSimulation.add_scenario(real_actions=...)`` (see ``load_events``);
-* acceptance checks → ``checks.yaml`` (neither format has checks).
-Timing semantics: both engines step every FMU in parallel (Jacobi coupling); run seafmu with
-``coupling: jacobi`` to compare exactly.
+  ``cosim run`` and libcosimpy read; ecos gets the same events from the JSON via a scenario
+  listener (``seafmu.hosts``; see ``load_events``);
+* acceptance checks → ``checks.yaml`` (neither format has checks);
+* Gauss-Seidel coupling: OSP's fixed-step algorithm, libcosim and ecos step every FMU with the
+  inputs of the start of the step (Jacobi coupling: one step of delay per connection). A scenario
+  with ``coupling: jacobi`` runs in seafmu as in those engines (equal to 1e-9, tested); one with
+  the default ``gauss-seidel`` is said to be left out.
 """
 
 from __future__ import annotations
@@ -44,27 +46,83 @@ class ExportError(ValueError):
 
 
 @dataclass
+class LeftOut:
+    """One thing the format cannot hold: what, the files it went to instead (if any), a note."""
+
+    what: str
+    files: list[Path] = field(default_factory=list)
+    note: str = ""
+
+    def text(self) -> str:
+        where = f" -> {', '.join(str(f) for f in self.files)}" if self.files else ""
+        return f"{self.what}{where}{f' ({self.note})' if self.note else ''}"
+
+
+@dataclass
 class Export:
     """What was written and what the target format could not hold."""
 
     files: list[Path] = field(default_factory=list)
-    left_out: list[str] = field(default_factory=list)
+    left_out: list[LeftOut] = field(default_factory=list)
 
     def summary(self) -> str:
+        """One line: what was left out of the format and where it went instead."""
         if not self.left_out:
-            return "nothing left out"
-        return "not expressible in the format, written beside it: " + "; ".join(self.left_out)
+            return "left out: nothing"
+        return "left out (not expressible in SSP/OSP): " + "; ".join(x.text() for x in self.left_out)
+
+    @classmethod
+    def merged(cls, exports: list[Export]) -> Export:
+        """Several exports of one scenario (SSP and OSP) as one: the files, and each thing left
+        out once with all the files it went to."""
+        out = cls()
+        by_what: dict[str, LeftOut] = {}
+        for e in exports:
+            out.files.extend(e.files)
+            for x in e.left_out:
+                if x.what in by_what:
+                    by_what[x.what].files.extend(f for f in x.files if f not in by_what[x.what].files)
+                else:
+                    by_what[x.what] = LeftOut(x.what, list(x.files), x.note)
+                    out.left_out.append(by_what[x.what])
+        return out
+
+
+def check_exportable(sc: Scenario) -> None:
+    """Refuse what no engine can run from a file: hardware links (ExportError, one line)."""
+    for inst in sc.instances:
+        if inst.hardware:
+            raise ExportError(f"{sc.source}: fmus.{inst.name}: a hardware link cannot be exported; build it "
+                              f"with 'seafmu build --link {inst.hardware}' and name the FMU with 'fmu:'")
+
+
+def check_ssp_target(target: Path) -> Path:
+    target = Path(target)
+    if target.suffix != ".ssp":
+        raise ExportError(f"{target}: an SSP file name ends in .ssp")
+    if target.exists() and not target.is_file():
+        raise ExportError(f"{target}: exists and is not a file")
+    if not target.parent.is_dir():
+        raise ExportError(f"{target}: folder {target.parent} does not exist")
+    return target
+
+
+def check_osp_target(target: Path) -> Path:
+    target = Path(target)
+    if target.exists() and not target.is_dir():
+        raise ExportError(f"{target}: exists and is not a folder")
+    if not target.parent.is_dir():
+        raise ExportError(f"{target}: folder {target.parent} does not exist")
+    return target
 
 
 def fmu_sources(sc: Scenario) -> dict[str, Path]:
     """Instance name -> FMU file (built seafmu FMUs or the scenario's own)."""
     from seafmu.build import build_fmu
 
+    check_exportable(sc)
     out: dict[str, Path] = {}
     for inst in sc.instances:
-        if inst.hardware:
-            raise ExportError(f"{sc.source}: fmus.{inst.name}: a hardware link cannot be exported; build it "
-                              f"with 'seafmu build --link {inst.hardware}' and name the FMU with 'fmu:'")
         out[inst.name] = inst.fmu_file if inst.fmu_file else build_fmu(sc.vessel, str(inst.kind)).path
     return out
 
@@ -192,21 +250,22 @@ def _beside(sc: Scenario, out: Export, events_path: Path, checks_path: Path) -> 
     if sc.events:
         events_path.write_text(json.dumps(events_document(sc), indent=2) + "\n")
         out.files.append(events_path)
-        out.left_out.append(f"{len(sc.events)} events -> {events_path.name} (libcosim scenario JSON)")
+        out.left_out.append(LeftOut(f"{len(sc.events)} events", [events_path], "libcosim scenario JSON"))
     if sc.checks:
         checks_path.write_text(yaml.safe_dump({"scenario": sc.name, "checks": _checks_document(sc)},
                                               sort_keys=False))
         out.files.append(checks_path)
-        out.left_out.append(f"{len(sc.checks)} checks -> {checks_path.name}")
+        out.left_out.append(LeftOut(f"{len(sc.checks)} checks", [checks_path]))
+    if sc.coupling != "jacobi":
+        out.left_out.append(LeftOut(
+            f"{sc.coupling} coupling", [],
+            "libcosim and ecos couple as Jacobi, one step of delay per connection; "
+            "'seafmu run --coupling jacobi' runs as they do"))
 
 
 def export_ssp(sc: Scenario, target: Path) -> Export:
     """Write ``target`` (.ssp: a zip of SystemStructure.ssd, resources/*.fmu, resources/*.ssv)."""
-    target = Path(target)
-    if target.suffix != ".ssp":
-        raise ExportError(f"{target}: an SSP file name ends in .ssp")
-    if not target.parent.is_dir():
-        raise ExportError(f"{target}: folder {target.parent} does not exist")
+    target = check_ssp_target(target)
     fmus = fmu_sources(sc)
     sources = {name: f"resources/{path.name}" for name, path in fmus.items()}
     out = Export()
@@ -255,11 +314,7 @@ def osp_document(sc: Scenario, sources: dict[str, str]) -> bytes:
 
 def export_osp(sc: Scenario, target: Path) -> Export:
     """Write ``target/``: OspSystemStructure.xml, the FMUs, scenario.json (events), checks.yaml."""
-    target = Path(target)
-    if target.exists() and not target.is_dir():
-        raise ExportError(f"{target}: exists and is not a folder")
-    if not target.parent.is_dir():
-        raise ExportError(f"{target}: folder {target.parent} does not exist")
+    target = check_osp_target(target)
     target.mkdir(exist_ok=True)
     fmus = fmu_sources(sc)
     out = Export()

@@ -1,8 +1,9 @@
 """Run files written by ``seafmu export`` in other engines: OSP libcosim (libcosimpy) and ecos (ecospy).
 
-Used by the cross-engine tests and ``benchmarks/bench_hosts.py``. Each runner steps the engine
-one communication step at a time and reads the requested real variables after every step, so
-the series line up with seafmu's ``results.csv`` rows (row k = after k steps).
+Used by the cross-engine tests and ``benchmarks/bench_hosts.py``. Each runner returns the
+requested real variables after initialisation (row 0) and after every step (row k = after k
+steps), so the series line up with seafmu's ``results.csv`` rows when seafmu records every step.
+Both engines couple Jacobi-wise: compare with seafmu runs made with ``coupling: jacobi``.
 
 ecos needs the TBB runtime (``libtbb.so.12``); the ``tbb`` wheel installs it into the
 environment's ``lib/`` folder, which is not on the loader's path, so :func:`_load_ecos` preloads
@@ -37,31 +38,49 @@ def _steps(duration: float, step: float) -> int:
 
 def _libcosim_run(execution: Any, record: Sequence[tuple[str, str]], n_steps: int,
                   scenario: Path | None) -> dict[str, np.ndarray]:
+    """Step the whole run in one call and read libcosim's time series of the recorded variables.
+
+    A time-series observer, not the last-value one: libcosim initialises lazily, in the first
+    ``step``, so values read before it are the FMUs' start values; the time-series observer
+    records its first sample when initialisation has finished (row 0 = after initialisation,
+    as in seafmu's results and ecos).
+    """
+    from libcosimpy.CosimEnums import CosimVariableType
     from libcosimpy.CosimManipulator import CosimManipulator
     from libcosimpy.CosimObserver import CosimObserver
 
+    from seafmu.libcosim_runner import _samples, _Var
+
     index = {info.name.decode(): info.index for info in execution.slave_infos()}
-    refs: list[tuple[int, int]] = []
+    refs: list[tuple[int, _Var]] = []
     for inst, var in record:
         if inst not in index:
             raise EngineError(f"libcosim: no simulator '{inst}'")
-        by_name = {v.name.decode(): v.reference for v in execution.slave_variables(index[inst])}
+        by_name = {v.name.decode(): v for v in execution.slave_variables(index[inst])}
         if var not in by_name:
             raise EngineError(f"libcosim: simulator '{inst}' has no variable '{var}'")
-        refs.append((index[inst], by_name[var]))
-    observer = CosimObserver.create_last_value()
+        if CosimVariableType(by_name[var].type) != CosimVariableType.REAL:
+            raise EngineError(f"libcosim: {inst}.{var} is not a real variable")
+        refs.append((index[inst], _Var(var, by_name[var].reference, "REAL", "")))
+    observer = CosimObserver.create_time_series(buffer_size=n_steps + 1)
     execution.add_observer(observer)
+    for slave, v in refs:
+        if not observer.start_time_series(slave, v.ref, CosimVariableType.REAL):
+            raise EngineError(f"libcosim: cannot record variable {v.name} of simulator {slave}")
     if scenario is not None:
         manager = CosimManipulator.create_scenario_manager()
         execution.add_manipulator(manager)
         if not execution.load_scenario(manager, str(scenario)):
             raise EngineError(f"libcosim: could not load the scenario {scenario}")
+    if not execution.step(n_steps):
+        raise EngineError(f"libcosim: the run failed at t = {execution.status().current_time / _NS:g} s")
     out = np.empty((n_steps + 1, len(record)))
-    for k in range(n_steps + 1):
-        if k and not execution.step(1):
-            raise EngineError(f"libcosim: step {k} failed")
-        for j, (slave, ref) in enumerate(refs):
-            out[k, j] = observer.last_real_values(slave, [ref])[0]
+    for j, (slave, v) in enumerate(refs):
+        steps, _, values = _samples(observer, slave, v, n_steps + 1)
+        if not len(steps) or steps[0] != 0 or np.any(np.diff(steps) <= 0):
+            raise EngineError(f"libcosim: the samples of {v.name} do not start at step 0")
+        # a simulator with a longer step (step_multiple) is sampled when it steps: held between
+        out[:, j] = values[np.searchsorted(steps, np.arange(n_steps + 1), side="right") - 1]
     return {f"{i}.{v}": out[:, j] for j, (i, v) in enumerate(record)}
 
 

@@ -1,8 +1,9 @@
 """Scenario files: schema (pydantic), loading, and every check that can fail before a run.
 
-A scenario names a vessel, the FMUs and their order (the Gauss-Seidel order of the master), the
-connections (by matching names, or explicit), parameters, timed events, recorded outputs and
-acceptance checks. Every mistake is reported as one line: ``file: field: what is wrong``.
+A scenario names a vessel, the FMUs and their order (the stepping order of the master), its
+coupling (``gauss-seidel`` or ``jacobi``, see ``seafmu.master``), the connections (by matching
+names, or explicit), parameters, timed events, recorded outputs and acceptance checks. Every
+mistake is reported as one line: ``file: field: what is wrong``.
 
 Every number that sizes the run is bounded here, before anything is allocated, and ``seafmu
 check`` runs exactly these checks: the file size (``seafmu.yamlfile``), the step (``MIN_STEP`` <=
@@ -32,6 +33,8 @@ SCENARIO_DIR = REPO / "scenarios"
 DEFAULT_SCENARIO = "minerva2_dp"
 KINDS = ("plant", "observer", "controller", "allocator")
 Value = float | int | str | bool
+Coupling = Literal["gauss-seidel", "jacobi"]
+COUPLINGS: tuple[str, ...] = ("gauss-seidel", "jacobi")
 
 MIN_STEP = 1e-6  # s: the smallest master step
 MAX_DURATION = 1e7  # s: about 116 days
@@ -104,6 +107,9 @@ class ScenarioModel(_Strict):
     step: float = Field(gt=0, description="master communication step, s")
     record_interval: float | None = Field(None, gt=0)
     realtime: bool = Field(False, description="pace the run to the wall clock (always, with hardware)")
+    coupling: Coupling = Field(
+        "gauss-seidel", description="gauss-seidel: each FMU reads the newest outputs (scenario order); "
+        "jacobi: every FMU steps with the outputs of the previous step, as libcosim and ecos do")
     fmus: dict[str, FmuEntry] | None = None
     connect: Literal["auto", "explicit"] = "auto"
     connections: list[str] = Field(default_factory=list)
@@ -152,6 +158,7 @@ class Scenario:
     outputs: list[tuple[str, str]]
     checks: list[Check]
     realtime: bool = False
+    coupling: Coupling = "gauss-seidel"
 
     def instance(self, name: str) -> Instance:
         return next(i for i in self.instances if i.name == name)
@@ -218,8 +225,8 @@ def _split(ref: str, path: Path, where: str) -> tuple[str, str]:
 
 def interface_variables(vessel: str, kind: str) -> dict[str, VarInfo]:
     """Variables of a seafmu FMU kind, from the Block interface (no build needed to validate)."""
-    from components.vessel_spec import load_vessel
-    from fmus.registry import BLOCKS
+    from seafmu.components.vessel_spec import load_vessel
+    from seafmu.fmus.registry import BLOCKS
 
     iface = BLOCKS[kind].interface(load_vessel(vessel))
     out: dict[str, VarInfo] = {}
@@ -242,8 +249,8 @@ def _profile_path(profile: str, path: Path) -> str:
 
 def hardware_variables(profile: str, vessel: str, path: Path, where: str) -> dict[str, VarInfo]:
     """The link's variables from its profile (no port opened), checked against the scenario's vessel."""
-    from hardware.link import HardwareLink
-    from hardware.profile import load_profile
+    from seafmu.hardware.link import HardwareLink
+    from seafmu.hardware.profile import load_profile
 
     try:
         prof = load_profile(_profile_path(profile, path))
@@ -296,8 +303,8 @@ def fmu_file_variables(fmu: Path) -> dict[str, VarInfo]:
 
 def _check_vessel_file(value: str, vessel: str, kind: str, path: Path, where: str) -> str:
     """Resolve against the scenario's folder, load it, and demand the interface of the FMU."""
-    from components.vessel_spec import VesselFileError, load_vessel
-    from fmus.registry import BLOCKS
+    from seafmu.components.vessel_spec import VesselFileError, load_vessel
+    from seafmu.fmus.registry import BLOCKS
 
     p = Path(value)
     if not p.is_absolute():
@@ -394,8 +401,8 @@ def _check_time_grid(model: ScenarioModel, path: Path) -> float:
 
 
 def resolve(model: ScenarioModel, path: Path) -> Scenario:
-    from components.vessel_spec import VesselFileError, bundled_vessels, load_vessel
     from seafmu.build import VESSELS
+    from seafmu.components.vessel_spec import VesselFileError, bundled_vessels, load_vessel
 
     try:
         load_vessel(model.vessel)
@@ -584,4 +591,5 @@ def resolve(model: ScenarioModel, path: Path) -> Scenario:
         outputs=outputs,
         checks=model.checks,
         realtime=model.realtime or any(i.hardware for i in instances),
+        coupling=model.coupling,
     )

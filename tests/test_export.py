@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 import xmlschema
 
+from seafmu.cli import main
 from seafmu.export import ExportError, events_document, export_osp, export_ssp
 from seafmu.scenario import load_scenario
 
@@ -124,7 +125,63 @@ def test_exported_files_run_alike_in_libcosim_and_ecos(exported: dict[str, Path]
     for res in (osp, ssp, eco):
         assert res["controller.north_ref"][-1] == 3.0
         assert res["plant.north"][-1] > 1.0
-    # row 0 is libcosim's value before initialisation; compare after the first step
+    # every row, the one after initialisation (t = 0) included
+    assert osp["plant.down"][0] == 5.0  # the initial depth, not the FMU's start value
     for key in osp:
-        np.testing.assert_allclose(ssp[key][1:], osp[key][1:], rtol=0, atol=1e-9)
-        np.testing.assert_allclose(eco[key][1:], osp[key][1:], rtol=0, atol=1e-9)
+        np.testing.assert_allclose(ssp[key], osp[key], rtol=0, atol=1e-9)
+        np.testing.assert_allclose(eco[key], osp[key], rtol=0, atol=1e-9)
+
+
+# -- the command line: seafmu export -----------------------------------------------------------
+
+def test_cli_export_writes_both_formats_and_one_left_out_line(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], built_fmus: object) -> None:
+    code = main(["export", "minerva2_dp", "--ssp", str(tmp_path / "m.ssp"), "--osp", str(tmp_path / "osp")])
+    out = capsys.readouterr().out.splitlines()
+    assert code == 0
+    wrote = [Path(line.removeprefix("wrote ")) for line in out if line.startswith("wrote ")]
+    assert all(p.is_file() for p in wrote)
+    fmus = {f"Minerva2{k}.fmu" for k in ("Plant", "Observer", "Controller", "Allocator")}
+    assert {p.relative_to(tmp_path).as_posix() for p in wrote} == {
+        "m.ssp", "m.events.json", "m.checks.yaml", "osp/OspSystemStructure.xml", "osp/scenario.json",
+        "osp/checks.yaml", *(f"osp/{f}" for f in fmus)}
+    left = [line for line in out if line.startswith("left out")]
+    assert left == [out[-1]]
+    assert f"4 events -> {tmp_path / 'm.events.json'}, {tmp_path / 'osp' / 'scenario.json'}" in left[0]
+    assert "checks ->" in left[0]
+    assert "gauss-seidel coupling (libcosim and ecos couple as Jacobi" in left[0]
+
+
+def test_cli_export_of_jacobi_scenarios_leaves_the_coupling_in(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], built_fmus: object) -> None:
+    dp = tmp_path / "dp.yaml"
+    dp.write_text(Path("scenarios/minerva2_dp.yaml").read_text() + "coupling: jacobi\n")
+    assert main(["export", str(dp), "--osp", str(tmp_path / "osp")]) == 0
+    last = capsys.readouterr().out.splitlines()[-1]
+    assert last.startswith("left out (not expressible in SSP/OSP): 4 events") and "coupling" not in last
+    bare = tmp_path / "bare.yaml"
+    bare.write_text("name: bare\nvessel: amv_osf\nduration: 1\nstep: 0.05\ncoupling: jacobi\n")
+    assert main(["export", str(bare), "--ssp", str(tmp_path / "bare.ssp")]) == 0
+    assert capsys.readouterr().out.splitlines() == [f"wrote {tmp_path / 'bare.ssp'}", "left out: nothing"]
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["minerva2_dp"], "nothing to write: give --ssp FILE.ssp and/or --osp DIR"),
+    (["minerva2_dp", "--ssp", "{tmp}/m.zip"], "m.zip: an SSP file name ends in .ssp"),
+    (["minerva2_dp", "--osp", "{tmp}/no/such"], "folder {tmp}/no does not exist"),
+    (["minerva2_dp", "--ssp", "{tmp}/ok.ssp", "--osp", "{tmp}/no/such"], "folder {tmp}/no does not exist"),
+    (["scenarios/hil/minerva2_dp_emulator.yaml", "--ssp", "{tmp}/h.ssp"], "hardware link cannot be exported"),
+    (["no_such_scenario", "--osp", "{tmp}/osp"], "no such file or shipped scenario"),
+    (["{tmp}/bad.yaml", "--osp", "{tmp}/osp"], "bad.yaml: coupling:"),
+])
+def test_cli_export_bad_input_is_one_line_exit_2(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], args: list[str], message: str) -> None:
+    (tmp_path / "bad.yaml").write_text("name: bad\nvessel: amv_osf\nduration: 1\nstep: 0.05\n"
+                                       "coupling: parallel\n")
+    before = set(tmp_path.iterdir())
+    code = main(["export", *(a.format(tmp=tmp_path) for a in args)])
+    out, err = capsys.readouterr()
+    assert code == 2 and out == ""
+    assert err.startswith("seafmu: error: ") and err.count("\n") == 1
+    assert message.format(tmp=tmp_path) in err
+    assert set(tmp_path.iterdir()) == before  # nothing written
