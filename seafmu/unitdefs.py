@@ -93,7 +93,10 @@ class _Parser:
         if self.peek() == "^":
             self.take()
             sign = -1.0 if self.peek() == "-" and self.take() else 1.0
-            unit = _pow(unit, sign * float(self.take()))
+            exponent = self.take()
+            if not re.fullmatch(r"\d+(?:\.\d+)?", exponent):
+                raise UnitParseError(f"unit '{self.text}': exponent '{exponent}' is not a number")
+            unit = _pow(unit, sign * float(exponent))
         return unit
 
     def atom(self) -> SIUnit:

@@ -57,7 +57,7 @@ def _bare_numbers(node: object, path: str) -> list[str]:
 def test_every_number_in_a_vessel_file_has_a_source(name: str) -> None:
     import yaml
 
-    from components.vessel_spec import vessel_path
+    from seafmu.components.vessel_spec import vessel_path
 
     doc = yaml.safe_load(vessel_path(name).read_text())
     doc.pop("dof")  # the model's dimension, not a physical number
