@@ -147,10 +147,15 @@ def _parameters(inst: Instance) -> list[tuple[str, str, Any, str]]:
 
 
 def _ports(inst: Instance) -> list[tuple[str, str, str, str]]:
-    """(name, kind, type, unit) of the connectors: inputs, outputs and the parameters that are set."""
+    """(name, kind, type, unit) of the connectors: inputs, outputs and the parameters that are set.
+
+    Each name once: an input given a start value (``down_ref: 5 m``) stays an input connector
+    (its value is in the parameter set all the same); SSP hosts key connectors by name.
+    """
     ports = [(v.name, v.causality, v.type, v.unit or "") for v in inst.variables.values()
              if v.causality in ("input", "output")]
-    ports += [(n, "parameter", t, u) for n, t, _, u in _parameters(inst)]
+    named = {p[0] for p in ports}
+    ports += [(n, "parameter", t, u) for n, t, _, u in _parameters(inst) if n not in named]
     return ports
 
 

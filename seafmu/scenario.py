@@ -223,12 +223,13 @@ def _split(ref: str, path: Path, where: str) -> tuple[str, str]:
     return inst.strip(), var.strip()
 
 
-def interface_variables(vessel: str, kind: str) -> dict[str, VarInfo]:
-    """Variables of a seafmu FMU kind, from the Block interface (no build needed to validate)."""
+def interface_variables(vessel: str, kind: str, spec: Any = None) -> dict[str, VarInfo]:
+    """Variables of a seafmu FMU kind, from the Block interface (no build needed to validate);
+    ``spec``: the vessel, loaded already (``load_vessel(vessel)``)."""
     from seafmu.components.vessel_spec import load_vessel
     from seafmu.fmus.registry import BLOCKS
 
-    iface = BLOCKS[kind].interface(load_vessel(vessel))
+    iface = BLOCKS[kind].interface(spec if spec is not None else load_vessel(vessel))
     out: dict[str, VarInfo] = {}
     groups = (("input", iface.inputs), ("output", iface.outputs), ("parameter", iface.parameters))
     for causality, sigs in groups:
@@ -301,7 +302,7 @@ def fmu_file_variables(fmu: Path) -> dict[str, VarInfo]:
     return out
 
 
-def _check_vessel_file(value: str, vessel: str, kind: str, path: Path, where: str) -> str:
+def _check_vessel_file(value: str, vessel: str, kind: str, path: Path, where: str, spec: Any) -> str:
     """Resolve against the scenario's folder, load it, and demand the interface of the FMU."""
     from seafmu.components.vessel_spec import VesselFileError, load_vessel
     from seafmu.fmus.registry import BLOCKS
@@ -313,7 +314,7 @@ def _check_vessel_file(value: str, vessel: str, kind: str, path: Path, where: st
         other = load_vessel(p)
     except VesselFileError as exc:
         raise _fail(path, where, str(exc)) from None
-    a, b = BLOCKS[kind].interface(load_vessel(vessel)), BLOCKS[kind].interface(other)
+    a, b = BLOCKS[kind].interface(spec), BLOCKS[kind].interface(other)
     if a.input_names() != b.input_names() or a.output_names() != b.output_names():
         raise _fail(path, where, f"{p} has another interface than vessel '{vessel}' (thrusters, DOF and "
                     "sensors must match)")
@@ -405,7 +406,7 @@ def resolve(model: ScenarioModel, path: Path) -> Scenario:
     from seafmu.components.vessel_spec import VesselFileError, bundled_vessels, load_vessel
 
     try:
-        load_vessel(model.vessel)
+        spec = load_vessel(model.vessel)  # once: each FMU kind's interface is made from it
     except VesselFileError as exc:
         known = "" if "bundled:" in str(exc) else f" (bundled: {', '.join(bundled_vessels())})"
         raise _fail(path, "vessel", f"{exc}{known}") from None
@@ -427,7 +428,7 @@ def resolve(model: ScenarioModel, path: Path) -> Scenario:
         if not re.match(_IDENT, name):
             raise _fail(path, where, "an FMU name must be a plain identifier (letters, digits, _ or -)")
         if e.kind is not None:
-            variables = interface_variables(model.vessel, e.kind)
+            variables = interface_variables(model.vessel, e.kind, spec)
             fmu_file = None
         elif e.hardware is not None:
             variables = hardware_variables(e.hardware, model.vessel, path, f"{where}.hardware")
@@ -451,7 +452,7 @@ def resolve(model: ScenarioModel, path: Path) -> Scenario:
             params[pname] = _convert(value, info, path, f"{where}.parameters.{pname}")
         if e.kind is not None and params.get("vessel_file"):
             params["vessel_file"] = _check_vessel_file(params["vessel_file"], model.vessel, e.kind, path,
-                                                       f"{where}.parameters.vessel_file")
+                                                       f"{where}.parameters.vessel_file", spec)
         instances.append(Instance(name, e.kind, fmu_file, e.step_multiple, params, variables,
                                   hardware=_profile_path(e.hardware, path) if e.hardware else None))
     by_name = {i.name: i for i in instances}

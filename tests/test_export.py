@@ -12,6 +12,7 @@ import subprocess
 import sys
 import zipfile
 from pathlib import Path
+from xml.etree import ElementTree as ET
 
 import numpy as np
 import pytest
@@ -56,6 +57,22 @@ def test_ssd_and_ssv_validate_against_the_ssp_1_0_schema(exported: dict[str, Pat
     # connectors carry types and units, units carry SI exponents
     assert 'name="north" kind="output"' in ssd and 'unit="m"' in ssd
     assert '<ssc:Unit name="rev/s">' in ssd
+
+
+def test_connector_names_are_unique_in_each_component(exported: dict[str, Path]) -> None:
+    """controller.down_ref is an input with a start value: one input connector, its value in the
+    parameter set (a second connector of the same name breaks SSP hosts that key by name: fmpy.ssp)."""
+    with zipfile.ZipFile(exported["ssp"]) as z:
+        root = ET.fromstring(z.read("SystemStructure.ssd"))
+        controller_ssv = z.read("resources/controller.ssv").decode()
+    ns = {"ssd": "http://ssp-standard.org/SSP1/SystemStructureDescription"}
+    for comp in root.iterfind(".//ssd:Component", ns):
+        names = [c.get("name") for c in comp.iterfind("ssd:Connectors/ssd:Connector", ns)]
+        assert len(names) == len(set(names)), comp.get("name")
+    ctrl = root.find(".//ssd:Component[@name='controller']", ns)
+    assert [c.get("kind") for c in ctrl.iterfind("ssd:Connectors/ssd:Connector[@name='down_ref']", ns)] == [
+        "input"]
+    assert 'name="down_ref"' in controller_ssv
 
 
 def test_parameters_are_bound_in_si(exported: dict[str, Path]) -> None:
