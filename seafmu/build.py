@@ -24,11 +24,20 @@ from xml.etree import ElementTree as ET
 
 import pythonfmu
 
+from seafmu.components.vessel_spec import bundled_vessels, load_vessel
 from seafmu.unitdefs import UnitParseError, base_unit
 
 REPO = Path(__file__).resolve().parents[1]
 KINDS = ("plant", "observer", "controller", "allocator")
-VESSELS = ("minerva2", "amv_osf")
+
+
+def _vessels_with_fmus() -> tuple[str, ...]:
+    """Every bundled vessel file gets its FMUs (a new vessel is data only), except a variant of
+    another vessel (``extra.variant_of``), which is loaded into that vessel's FMUs by vessel_file."""
+    return tuple(v for v in bundled_vessels() if not load_vessel(v).extra.get("variant_of"))
+
+
+VESSELS = _vessels_with_fmus()
 SOURCE_PACKAGES = ("components", "fmus")
 
 

@@ -36,11 +36,11 @@ print("ok", len(sys.argv) - 1)
 """
 
 
-def test_all_eight_fmus_one_after_another_with_simulate_fmu(built_fmus: dict) -> None:
+def test_every_fmu_one_after_another_with_simulate_fmu(built_fmus: dict) -> None:
     paths = [str(fmu_path(v, k)) for v in VESSELS for k in KINDS]
     proc = _host(_SIMULATE_ALL, *paths, *paths[:2])  # and the first two again after the rest
     assert proc.returncode == 0, proc.stderr[-1500:]
-    assert "ok 10" in proc.stdout
+    assert f"ok {len(paths) + 2}" in proc.stdout
 
 
 _SIDE_BY_SIDE = """

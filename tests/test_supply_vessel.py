@@ -238,15 +238,10 @@ def test_dp_holds_station_in_current_and_reaches_setpoint_steps(supply: VesselSp
 
 
 def test_scenario_runs_through_the_master_when_accepted() -> None:
-    """scenarios/supply_dp.yaml through seafmu's master in process, once seafmu builds FMUs for supply."""
-    from seafmu.scenario import ScenarioError, load_scenario
+    """scenarios/supply_dp.yaml through seafmu's master in process."""
+    from seafmu.scenario import load_scenario
 
-    try:
-        sc = load_scenario(SCENARIO)
-    except ScenarioError as exc:
-        if "has no FMUs" in str(exc):
-            pytest.skip("seafmu/build.py VESSELS does not list 'supply' yet")
-        raise
+    sc = load_scenario(SCENARIO)
     from seafmu.master import run
     from seafmu.results import evaluate_checks
 
