@@ -10,7 +10,7 @@ import pytest
 
 from seafmu.identification import timeseries as ts
 from seafmu.identification.cli import main
-from seafmu.identification.diagnosis import demo_trial
+from seafmu.identification.synthetic import demo_trial
 from seafmu.identification.trial import write_trial
 
 DATA = Path(__file__).resolve().parents[1] / "scenarios" / "data"

@@ -13,9 +13,10 @@ import math
 import pytest
 
 from seafmu.identification.catalogue import CATALOGUE, null_value
-from seafmu.identification.diagnosis import demo_trial, diagnose
+from seafmu.identification.diagnosis import diagnose
+from seafmu.identification.synthetic import demo_trial
 
-# What was hidden (see diagnosis.demo_trial) and how close the fitted effect parameter must come.
+# What was hidden (see synthetic.demo_trial) and how close the fitted effect parameter must come.
 # Friction is fitted with a smooth law (creep instead of stiction), which biases f_c upwards.
 TRUTH = {
     "linear_damping": ("d_L", lambda a: 8.0, 0.15), "quadratic_damping": ("d_Q", lambda a: 34.0, 0.1),

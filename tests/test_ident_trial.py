@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import yaml
 
-from seafmu.identification.diagnosis import demo_trial
+from seafmu.identification.synthetic import demo_trial
 from seafmu.identification.trial import TrialError, load_trial, write_trial
 
 DATA = Path(__file__).resolve().parents[1] / "scenarios" / "data"

@@ -19,8 +19,8 @@ _EXPORTS = {
     "FitResult": "fitting",
     "CATALOGUE": "catalogue", "Effect": "catalogue",
     "identify": "diagnosis", "diagnose": "diagnosis", "Diagnosis": "diagnosis", "Identification": "diagnosis",
-    "Rule": "diagnosis", "demo_trial": "diagnosis", "write_vessel": "diagnosis",
-    "vessel_updates": "diagnosis", "plant_trial": "plant_trials",
+    "Rule": "diagnosis", "demo_trial": "synthetic", "write_vessel": "writeback",
+    "vessel_updates": "writeback", "plant_trial": "plant_trials",
 }
 
 __all__ = sorted(_EXPORTS)

@@ -1,6 +1,6 @@
 """Levenberg–Marquardt for least squares with an "arrow" Jacobian, in time and memory linear in the data.
 
-The output-error fit of a maneuver log (``maneuver._output_error``) estimates a few model
+The output-error fit of a maneuver log (``maneuver.estimation._output_error``) estimates a few model
 parameters p shared by the whole log and, for each of S restarted segments, that segment's own
 initial state x_s (multiple shooting). A residual of segment s depends on p and x_s only, so the
 Jacobian is block-sparse::

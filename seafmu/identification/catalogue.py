@@ -15,7 +15,7 @@ import numpy as np
 
 from seafmu.identification.trial import ROTATIONAL, Trial
 
-# Effects with a maneuver-level extension (maneuver.effect_names; output error on the whole log).
+# Effects with a maneuver-level extension (maneuver.terms.effect_names; output error on the whole log).
 MANEUVER_EFFECTS = ("current", "constant_force")
 
 

@@ -179,8 +179,8 @@ def close_loop(trial: Trial, fit: FitResult, out_path: Path, method: str,
 
     Returns {"json": keys for the JSON document, "lines": lines for the summary and the report}.
     """
-    from seafmu.identification.diagnosis import write_vessel_file
     from seafmu.identification.replay import Replay, replay
+    from seafmu.identification.writeback import write_vessel_file
 
     msg, path = write_vessel_file(trial, fit, out_path, method, vessel)
     doc: dict[str, Any] = {"write_back": msg}

@@ -1,6 +1,6 @@
 """Trials made by seafmu's own plant (``PlantBlock``) with one catalogue effect hidden in it.
 
-``diagnosis.demo_trial`` generates data with the fitter's own simulator, so the truth always lies
+``synthetic.demo_trial`` generates data with the fitter's own simulator, so the truth always lies
 inside the fitted model class. These trials are made the way a real test would be: the vessel
 file (a ``dataclasses.replace`` of the shipped AMV OSF or Minerva 2 spec) or the plant's
 environment parameters carry the effect, ``PlantBlock`` integrates the full 3- or 6-DOF model
@@ -151,6 +151,8 @@ def plant_trial(effect: str | None, kind: str | None = None, seed: int = 0, nois
     angles, command levels; a saturation cap scales with it so it stays active). hold_surge=False
     lets the sway-yaw hull move in surge (see the sway_yaw_decay comment below).
     """
+    # Over 80 lines: one short branch per plant trial kind (vessel, DOF, experiment), kept together so
+    # the trial designs of docs/identification.md read side by side.
     A = float(amplitude)
     if effect is not None and effect in NOT_EXPRESSIBLE:
         raise ValueError(f"plant: '{effect}' cannot be hidden in the plant ({NOT_EXPRESSIBLE[effect]})")

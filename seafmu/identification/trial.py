@@ -501,6 +501,9 @@ def _vessel_ref(path: Path, vessel: str | None) -> str | None:
 
 
 def _resolve(tm: TrialModel, path: Path) -> Trial:
+    # Over 80 lines: it resolves the fields of the trial YAML in the order they depend on each other
+    # (files, kind, dof, table, input kind, columns and units), each error naming its field; one
+    # flat sequence reads like the format's documentation (docs/identification.md).
     def fail(where: str, msg: str) -> TrialError:
         return TrialError(f"{path}: {where}: {msg}")
 

@@ -24,6 +24,7 @@ import yaml
 
 from seafmu.components.vessel_spec import VesselFileError, VesselSpec, load_vessel, vessel_path
 from seafmu.identification.fitting import FitResult
+from seafmu.identification.trial import DOF_INDEX, Trial
 
 # Model-matrix names (fits, the brief) -> vessel-file fields.
 FIELD_ALIASES = {
@@ -118,6 +119,9 @@ def write_back(vessel: str | Path, updates: dict[str, float | list], out_path: P
     key a CI text (``{"quadratic_damping[0][0]": "95 % CI [805, 821]"}``); each changed field's
     ``source`` becomes "identified ...: <entries with CIs>; <trial, method, date>; earlier: <old>".
     """
+    # Over 80 lines: parse keys, edit each field block as text, add provenance, write atomically and
+    # read back: one transaction; it is split into helpers where the steps do not share state
+    # (_parse_key, _matrix, _block, _find_block, _check).
     src = vessel_path(vessel)
     original = load_vessel(src)  # the input must be valid to begin with
     text = src.read_text()
@@ -266,3 +270,90 @@ def updates_from_fit(fit: FitResult, vessel: VesselSpec, entries: str = "diagona
             updates[key] = val - shift
             prov[key] = f"95 % CI [{lo - shift:.6g}, {hi - shift:.6g}]"
     return updates, prov
+
+
+# -- writing back into a vessel file --------------------------------------------------------------
+
+def vessel_updates(trial: Trial, fit: FitResult, vessel_dof: int) -> tuple[dict[str, float], dict[str, str],
+                                                                           list[str]]:
+    """Vessel-file field paths and values from a fit, the fit parameter behind each, and notes."""
+    notes: list[str] = []
+    idx_map = DOF_INDEX[vessel_dof]
+    p = dict(fit.params)
+    up: dict[str, float] = {}
+    origin: dict[str, str] = {}
+    if trial.dof == "sway_yaw":
+        i, j = idx_map["sway"], idx_map["yaw"]
+        for key, (a, b) in {"Y_v": (i, i), "Y_r": (i, j), "N_v": (j, i), "N_r": (j, j)}.items():
+            if key in p:
+                up[f"linear_damping[{a}][{b}]"] = -p[key]
+                origin[f"linear_damping[{a}][{b}]"] = f"-{key}"
+        return up, origin, notes
+    if trial.dof not in idx_map:
+        return {}, {}, [f"the vessel has no {trial.dof} DOF"]
+    i = idx_map[trial.dof]
+    physical = trial.kind == "static" or "mass" in trial.constants
+    if trial.kind == "pendulum":
+        d = fit.extras.get("derived", {})
+        if "K_L" in d and "K_Q" in d:
+            p = {"d_L": d["K_L"], "d_Q": d["K_Q"]}
+        else:
+            return {}, {}, ["pendulum alpha, beta, gamma need weight, buoyancy and rod length to become "
+                            "K_L, K_Q"]
+    elif not physical:
+        return {}, {}, ["no 'mass' constant: the parameters are per unit inertia and cannot go into a "
+                        "vessel file"]
+    if trial.kind == "static" and trial.table == "thrust_rpm":
+        return {}, {}, ["thrust coefficients are per thruster: edit thrusters.units[*].k_forward by hand"]
+    for key, field_name in (("d_L", "linear_damping"), ("d_Q", "quadratic_damping")):
+        if key in p:
+            val = p[key]
+            if val < 0:
+                notes.append(f"fitted {key} = {val:.4g} < 0 is unphysical: written as 0")
+                val = 0.0
+            up[f"{field_name}[{i}][{i}]"] = val
+            origin[f"{field_name}[{i}][{i}]"] = key
+    if "m_a" in p:
+        up[f"added_mass[{i}][{i}]"] = trial.constants.get("added_mass", 0.0) + p["m_a"]
+        origin[f"added_mass[{i}][{i}]"] = "m_a"
+    rest = [k for k in p if k not in ("d_L", "d_Q", "m_a", "k", "c")]
+    if rest:
+        notes.append(f"not written (no vessel-file field): {', '.join(rest)}")
+    return up, origin, notes
+
+
+def write_vessel(trial: Trial, fit: FitResult, out_path: Path, method: str, vessel: str | None = None) -> str:
+    """Write identified values into a copy of the trial's vessel file; returns a one-line message."""
+    return write_vessel_file(trial, fit, out_path, method, vessel)[0]
+
+
+def write_vessel_file(trial: Trial, fit: FitResult, out_path: Path, method: str,
+                      vessel: str | None = None) -> tuple[str, Path | None]:
+    """As write_vessel, plus the written path (None if nothing was written), for the replay."""
+    name = vessel or trial.vessel
+    if not name:
+        return "write-back skipped: the trial names no vessel (trial 'vessel' or --vessel)", None
+
+    spec = load_vessel(name)
+    if trial.kind == "maneuver":  # the maneuver module knows its own parameter names
+        updates, mprov = updates_from_fit(fit, spec, trial=trial.name)
+        if not updates:
+            return "write-back skipped: the maneuver fit has no vessel-file parameters", None
+        mprov = {**mprov, "date": _dt.date.today().isoformat(), "method": method}
+        path = write_back(name, updates, out_path, mprov)
+        return f"wrote {len(updates)} entries ({', '.join(sorted(updates)[:6])}, ...) to {path}", path
+    updates, origin, notes = vessel_updates(trial, fit, spec.dof)
+    if not updates:
+        return "write-back skipped: " + "; ".join(notes or ["nothing to write"]), None
+    prov = {"trial": trial.name, "date": _dt.date.today().isoformat(), "method": method}
+    if notes:
+        prov["note"] = "; ".join(notes)
+    for key, par in origin.items():
+        bare = par.lstrip("-")
+        if bare in fit.ci95:
+            lo, hi = fit.ci95[bare]
+            lo, hi = (-hi, -lo) if par.startswith("-") else (lo, hi)
+            prov[key] = f"95 % CI [{lo:.4g}, {hi:.4g}]"
+    path = write_back(name, updates, out_path, prov)
+    extra = f" ({'; '.join(notes)})" if notes else ""
+    return f"wrote {', '.join(f'{k} = {v:.5g}' for k, v in updates.items())} to {path}{extra}", path

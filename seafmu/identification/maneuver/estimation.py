@@ -1,0 +1,316 @@
+"""Estimation: equation-error least squares (acceleration and force forms) and output error
+(simulation error by Levenberg-Marquardt on the block-structured Jacobian, ``arrowlm``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from seafmu.components.vessel_spec import VesselSpec
+from seafmu.identification import arrowlm, fitting
+from seafmu.identification.maneuver.preprocessing import _Prepared
+from seafmu.identification.maneuver.simulation import _sim_residual, _SimSetup
+from seafmu.identification.maneuver.statistics import _autocorr_inflation
+from seafmu.identification.maneuver.terms import _Restoring, _sym, coriolis_force, effect_names
+from seafmu.identification.trial import TrialError
+
+
+@dataclass
+class _LSResult:
+    M: np.ndarray
+    D_L: np.ndarray
+    D_Q: np.ndarray
+    names: list[str]
+    values: np.ndarray
+    cov: np.ndarray
+    residual: np.ndarray  # (n, d) equation error
+    n_rows: int
+    note: str
+    iterations: int = 1
+
+
+def _names(prefix: str, d: int, entries: str) -> list[tuple[str, int, int]]:
+    if entries == "diag":
+        return [(f"{prefix}[{i},{i}]", i, i) for i in range(d)]
+    if entries == "upper":
+        return [(f"{prefix}[{i},{j}]", i, j) for i in range(d) for j in range(i, d)]
+    return [(f"{prefix}[{i},{j}]", i, j) for i in range(d) for j in range(d)]
+
+
+def _ls_acceleration(prep: _Prepared, rows: np.ndarray, g: np.ndarray, M0: np.ndarray,
+                     iterate: bool = False, warnings: list[str] | None = None) -> _LSResult:
+    """Thesis form: Y = nu_dot + M0^-1 (C_M0 nu + g) = Theta^T [tau, nu, |nu| nu], per row.
+
+    ``iterate``: replace M0 by the symmetric part of the estimated M and refit until Theta
+    settles (only Y changes, so the normal equations are factored once).
+    """
+    d = prep.nu.shape[1]
+    nu, tau = prep.nu[rows], prep.tau[rows]
+    Phi = np.hstack([tau, nu, np.abs(nu) * nu])
+    # normal equations with unit-scaled columns (condition ~20 on a rich trial; an SVD of the
+    # tall regressor matrix is what makes numpy slow on a busy multi-threaded BLAS)
+    A = Phi.T @ Phi
+    cs = np.sqrt(np.maximum(np.diag(A), 1e-300))
+    G = np.linalg.pinv(A / np.outer(cs, cs), hermitian=True) / np.outer(cs, cs)
+    P = G @ Phi.T
+
+    def fit(Mc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        Y = prep.nu_dot[rows] + np.linalg.solve(Mc, (coriolis_force(Mc, nu) + g[rows]).T).T
+        return Y, P @ Y
+
+    Y, Theta = fit(M0)
+    iterations = 1
+    if iterate:
+        for iterations in range(2, 201):  # noqa: B007 - the count is reported
+            M_new = _sym(np.linalg.inv(Theta[:d].T))
+            if np.any(np.linalg.eigvalsh(M_new) <= 0):
+                if warnings is not None:
+                    warnings.append("Coriolis iteration stopped: the estimated M is not positive definite")
+                break
+            Y, nxt = fit(M_new)
+            change = float(np.max(np.abs(nxt - Theta)) / max(float(np.max(np.abs(Theta))), 1e-300))
+            Theta = nxt
+            if change < 1e-10:
+                break
+        else:
+            if warnings is not None:
+                warnings.append("Coriolis iteration did not settle in 200 iterations")
+    E = Y - Phi @ Theta
+    n, p = Phi.shape
+    Sigma = E.T @ E / max(n - p, 1)
+    cov_theta = np.kron(Sigma, G)  # vec by output row: theta_i = Theta[:, i]
+
+    A, BL, BQ = Theta[:d].T, Theta[d : 2 * d].T, Theta[2 * d :].T
+    M = np.linalg.inv(A)
+    D_L, D_Q = -M @ BL, -M @ BQ
+    # delta method: d[M, D_L, D_Q] = -M dA [M, D_L, D_Q] - M [0, dB_L, dB_Q]
+    out_idx = _names("M", d, "full") + _names("D_L", d, "full") + _names("D_Q", d, "full")
+    values = np.concatenate([M.ravel(), D_L.ravel(), D_Q.ravel()])
+    Jd = np.zeros((3 * d * d, p * d))
+    for i in range(d):  # output row i of Theta^T
+        for k in range(p):
+            dA, dBL, dBQ = np.zeros((d, d)), np.zeros((d, d)), np.zeros((d, d))
+            blk, col = divmod(k, d)
+            (dA, dBL, dBQ)[blk][i, col] = 1.0
+            dM = -M @ dA @ M
+            dDL = -M @ dA @ D_L - M @ dBL
+            dDQ = -M @ dA @ D_Q - M @ dBQ
+            Jd[:, i * p + k] = np.concatenate([dM.ravel(), dDL.ravel(), dDQ.ravel()])
+    cov = Jd @ cov_theta @ Jd.T
+    return _LSResult(M, D_L, D_Q, [nm for nm, _, _ in out_idx], values, cov, E, n * d,
+                     "acceleration form (Minerva 2 study)", iterations)
+
+
+def _ls_joint(prep: _Prepared, rows: np.ndarray, g: np.ndarray, damping: str) -> _LSResult:
+    """Force form, linear in a symmetric M (incl. its Coriolis terms), D_L and D_Q:
+    tau - g = M nu_dot + C_M(nu) nu + D_L nu + D_Q |nu| nu, all DOF rows in one weighted LS."""
+    d = prep.nu.shape[1]
+    nu, nud = prep.nu[rows], prep.nu_dot[rows]
+    y = prep.tau[rows] - g[rows]
+    n = nu.shape[0]
+    entries = "full" if damping == "full" else "diag"
+    m_idx = _names("M", d, "upper")
+    l_idx = _names("D_L", d, entries)
+    q_idx = _names("D_Q", d, entries)
+    P = len(m_idx) + len(l_idx) + len(q_idx)
+    X = np.zeros((n, d, P))  # regressors, filled in place (no list of columns beside it)
+    for k, (_, i, j) in enumerate(m_idx):
+        E = np.zeros((d, d))
+        E[i, j] = E[j, i] = 1.0
+        X[:, :, k] = nud @ E.T + coriolis_force(E, nu)
+    nq = np.abs(nu) * nu
+    k = len(m_idx)
+    for src, idx in ((nu, l_idx), (nq, q_idx)):
+        for _, i, j in idx:
+            X[:, i, k] = src[:, j]
+            k += 1
+    # per-DOF Gram matrices once (the weights only scale them): few, large BLAS calls, which a
+    # busy shared machine serves far better than many
+    grams = [X[:, i, :].T @ X[:, i, :] for i in range(d)]
+    cross = [X[:, i, :].T @ y[:, i] for i in range(d)]
+
+    def solve(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Weighted normal equations (column-scaled): theta and (X^T W X)^-1."""
+        A = sum(w[i] ** 2 * grams[i] for i in range(d))
+        b = sum(w[i] ** 2 * cross[i] for i in range(d))
+        cs = np.sqrt(np.maximum(np.diag(A), 1e-300))
+        G = np.linalg.pinv(A / np.outer(cs, cs), hermitian=True) / np.outer(cs, cs)
+        return G @ b, G
+
+    w = 1.0 / np.maximum(y.std(axis=0), 1e-12)  # first pass: each DOF row scaled to unit spread
+    theta, G = solve(w)
+    E = y - np.einsum("ndp,p->nd", X, theta)
+    sd = np.sqrt(np.sum(E**2, axis=0) / max(n - P / d, 1))
+    w = 1.0 / np.maximum(sd, 1e-12 * max(float(np.max(sd)), 1e-300))
+    theta, G = solve(w)  # second pass: weights from the residual spread per DOF (feasible GLS)
+    E = y - np.einsum("ndp,p->nd", X, theta)
+    s2 = float(np.sum((E * w) ** 2)) / max(n * d - P, 1)
+    cov = s2 * G
+    M = np.zeros((d, d))
+    for k, (_, i, j) in enumerate(m_idx):
+        M[i, j] = M[j, i] = theta[k]
+    D_L, D_Q = np.zeros((d, d)), np.zeros((d, d))
+    off = len(m_idx)
+    for k, (_, i, j) in enumerate(l_idx):
+        D_L[i, j] = theta[off + k]
+    off += len(l_idx)
+    for k, (_, i, j) in enumerate(q_idx):
+        D_Q[i, j] = theta[off + k]
+    names = [nm for nm, _, _ in m_idx + l_idx + q_idx]
+    # residual as acceleration-equivalent for reporting (force residual / M row scale)
+    return _LSResult(M, D_L, D_Q, names, theta, cov, E, n * d,
+                     f"force form, symmetric M with its Coriolis terms solved jointly ({damping} damping)")
+
+
+def _run_ls(prep: _Prepared, rows: np.ndarray, vessel: VesselSpec, plant: dict[str, np.ndarray],
+            coriolis: str, damping: str, warnings: list[str]) -> _LSResult:
+    """The equation-error fit in the requested form."""
+    d = vessel.dof
+    n = prep.t.size
+    g_all = _Restoring(vessel)(prep.eta[:, 3], prep.eta[:, 4]) if d == 6 else np.zeros((n, 3))
+    if coriolis == "joint":
+        return _ls_joint(prep, rows, g_all, damping)
+    ls = _ls_acceleration(prep, rows, g_all, plant["M"], coriolis == "iterate", warnings)
+    if coriolis == "iterate":
+        ls.note += f", Coriolis from the estimated M ({ls.iterations} iterations)"
+    else:
+        ls.note += ", Coriolis and restoring from the vessel file's M"
+    return ls
+
+
+
+def _output_error(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | None, ls: _LSResult,
+                  plant: dict[str, np.ndarray], added_mass: bool, base: str, max_nfev: int,
+                  warnings: list[str], effect: str | None = None,
+                  start: dict[str, float] | None = None) -> tuple:
+    """Diagonal D_L, D_Q (and added mass) by simulation error, started from the LS estimate.
+
+    ``effect`` adds a diagnosis extension's parameters (``effect_names``), started at "absent";
+    ``start`` (name -> value, e.g. a baseline fit's) replaces the LS start where it has a value.
+    """
+    # Over 80 lines: the parameter layout (model diagonals, added mass, effect parameters, one initial
+    # state per segment) is shared by the closures mats/terms/residuals/jac; split apart, each would
+    # need the same ten arrays passed in, and the layout would be written in two places.
+    if setup is None:
+        raise TrialError("too few samples for an output-error fit")
+    d = vessel.dof
+    if base == "ls":
+        M0, DL0, DQ0 = _sym(ls.M), ls.D_L.copy(), ls.D_Q.copy()
+    else:
+        M0, DL0, DQ0 = plant["M"].copy(), plant["D_L"].copy(), plant["D_Q"].copy()
+    # start: LS diagonal (falls back to the vessel file where LS is unusable)
+    ls_ok_M = np.all(np.linalg.eigvalsh(_sym(ls.M)) > 0)
+    start_L = np.where(np.isfinite(np.diag(ls.D_L)), np.diag(ls.D_L), np.diag(plant["D_L"]))
+    start_Q = np.where(np.diag(ls.D_Q) > 0, np.diag(ls.D_Q), np.diag(plant["D_Q"]))
+    names = [f"D_L[{i},{i}]" for i in range(d)] + [f"D_Q[{i},{i}]" for i in range(d)]
+    p0 = [*start_L, *start_Q]
+    if added_mass:
+        names += [f"M[{i},{i}]" for i in range(d)]
+        mdiag = np.diag(ls.M) if ls_ok_M else np.diag(plant["M"])
+        p0 += list(np.where(mdiag > 0, mdiag, np.diag(plant["M"])))
+    if start:
+        p0 = [float(start.get(nm, v)) for nm, v in zip(names, p0, strict=True)]
+    e0 = len(names)  # effect parameters follow the model's
+    enames = effect_names(effect, d)
+    names += enames
+    p0 = np.array([*p0, *([0.0] * len(enames))], dtype=float)
+    nu_abs = np.sqrt(np.mean(prep.nu_raw**2, axis=0))
+    # parameter scales: a linear coefficient is worth its quadratic one times the rms speed
+    sQ = np.maximum(np.abs(p0[d : 2 * d]), 1e-3 * np.diag(plant["M"]))
+    sL = np.maximum(np.abs(p0[:d]), sQ * nu_abs + 1e-6)
+    scales = [*sL, *sQ] + ([*np.abs(p0[2 * d : 3 * d])] if added_mass else [])
+    if effect == "constant_force":  # a few % of the force each DOF sees
+        scales += list(0.05 * np.maximum(prep.tau.std(axis=0), 1e-3))
+    elif effect == "current":
+        scales += [0.1, 0.1]  # m/s
+    scales = np.maximum(np.array(scales), 1e-9)
+    # initial state of every segment is estimated too (multiple shooting without continuity):
+    # restarting from a noisy measured state biases the damping (measured: -7 % in sway)
+    x0_meas = setup.sim.x0
+    S, nx = x0_meas.shape
+    x_scale = np.maximum(np.sqrt(np.mean(x0_meas**2, axis=0)), 1e-6)
+    npar = p0.size
+    mask = setup.mask
+    maskd = np.broadcast_to(mask[:, :, None], (*mask.shape, d))  # residuals that count
+
+    def mats(P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        K = P.shape[0]
+        M = np.broadcast_to(M0, (K, d, d)).copy()
+        DL = np.broadcast_to(DL0, (K, d, d)).copy()
+        DQ = np.broadcast_to(DQ0, (K, d, d)).copy()
+        ii = np.arange(d)
+        DL[:, ii, ii] = P[:, :d]
+        DQ[:, ii, ii] = P[:, d : 2 * d]
+        if added_mass:
+            M[:, ii, ii] = P[:, 2 * d : 3 * d]
+        return M, DL, DQ
+
+    def terms(P: np.ndarray) -> dict[str, np.ndarray]:
+        """The effect's terms for the simulator: F0 (K, d) or vc (K, 2)."""
+        if effect == "constant_force":
+            return {"F0": P[:, e0 : e0 + d]}
+        if effect == "current":
+            return {"vc": P[:, e0 : e0 + 2]}
+        return {}
+
+    def residuals(Z: np.ndarray) -> np.ndarray:
+        """Residuals per segment (K, S, R) for several scaled parameter sets, R = (L + 1) d rows
+        per segment, zero where no sample is compared (the segment start, past the log's end)."""
+        P = Z[:, :npar] * scales
+        X0 = Z[:, npar:].reshape(-1, S, nx) * x_scale
+        r = _sim_residual(setup, *mats(P), X0, **terms(P))
+        r = np.where(maskd, np.where(np.isfinite(r), r, 1e3), 0.0)
+        return r.reshape(P.shape[0], S, -1)
+
+    def fun(z: np.ndarray) -> np.ndarray:
+        return residuals(z[None])[0]
+
+    def jac(z: np.ndarray) -> arrowlm.ArrowJacobian:
+        """Finite differences in one batched simulation: one run per model parameter, and one
+        per state component (it perturbs that component in every segment at once; segments
+        are independent, so segment s's rows give its own state's column). Kept by blocks
+        (arrowlm): a dense matrix would have one column per segment and state, rows x columns
+        growing as the square of the log length."""
+        step = 1e-6 * np.maximum(1.0, np.abs(z))
+        Z = np.repeat(z[None], 1 + npar + nx, axis=0)
+        Z[1 + np.arange(npar), np.arange(npar)] += step[:npar]
+        hx = 1e-6
+        for j in range(nx):
+            Z[1 + npar + j, npar + j :: nx] += hx
+        R = residuals(Z)
+        Jp = ((R[1 : 1 + npar] - R[0]) / step[:npar, None, None]).transpose(1, 2, 0)
+        Jx = ((R[1 + npar :] - R[0]) / hx).transpose(1, 2, 0)
+        return arrowlm.ArrowJacobian(np.ascontiguousarray(Jp), np.ascontiguousarray(Jx))
+
+    # start from the LS diagonal, unless the vessel file's values simulate the trial better
+    # (a poorly exciting log gives an LS model that may not even be stable)
+    p_file = np.concatenate([np.diag(plant["D_L"]), np.diag(plant["D_Q"])]
+                            + ([np.diag(plant["M"])] if added_mass else []) + [np.zeros(len(enames))])
+    x0z = (x0_meas / x_scale).ravel()
+    z_ls, z_file = np.concatenate([p0 / scales, x0z]), np.concatenate([p_file / scales, x0z])
+    costs = np.sum(residuals(np.vstack([z_ls, z_file])) ** 2, axis=(1, 2))
+    z0 = z_ls if costs[0] <= costs[1] else z_file
+    first = "given start" if start else "LS estimate"
+    start_from = first if costs[0] <= costs[1] else f"vessel file ({first} simulated worse)"
+    p0 = z0[:npar] * scales
+    # MINPACK's Levenberg-Marquardt (as least_squares(method="lm", x_scale=1.0)) on the block
+    # structure: time and memory linear in the log length (arrowlm)
+    sol = arrowlm.levenberg_marquardt(fun, jac, z0, max_nfev=max_nfev)
+    p = sol.x[:npar] * scales
+    if not sol.success:
+        warnings.append(f"output-error optimiser stopped: {sol.message}")
+    r = sol.fun[maskd.reshape(S, -1)]  # the compared residuals, in time order
+    infl = _autocorr_inflation(r.reshape(-1, d))
+    # s^2 (J^T J)^-1 over model and initial-state parameters (column-scaled pseudo-inverse), model block
+    n_cols = npar + S * nx
+    cov = float(r @ r) / max(r.size - n_cols, 1) * sol.jac.scaled(scales).normal().inverse_pp() * infl
+    ci = fitting.confidence_intervals(names, p, cov, r.size)
+    corr = fitting.correlation_matrix(cov)
+    M, DL, DQ = (a[0] for a in mats(p[None]))
+    info = {"oe_nfev": int(sol.nfev), "oe_cost": float(sol.cost), "oe_start_from": start_from,
+            "oe_start": dict(zip(names, p0.tolist(), strict=True)), "ci_inflation": infl,
+            "oe_status": sol.message, "effect": effect,
+            "effect_terms": {k: v[0] for k, v in terms(p[None]).items()}}
+    return M, DL, DQ, names, p, cov, ci, corr, r.size, info

@@ -1,0 +1,331 @@
+"""Orchestration: ``identify_maneuver`` checks the log, prepares it, runs LS (choosing the
+smoothing), optionally output error, and reports a ``FitResult``.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from seafmu.components.thrusters import thruster_matrix
+from seafmu.components.vessel_spec import NU_NAMES, TAU_NAMES, VesselSpec
+from seafmu.identification import fitting
+from seafmu.identification.fitting import FitResult
+from seafmu.identification.maneuver.estimation import _LSResult, _output_error, _run_ls
+from seafmu.identification.maneuver.io import (
+    SAMPLES_PER_REGRESSOR,
+    ManeuverData,
+    _excitation_problems,
+    _gap_problems,
+)
+from seafmu.identification.maneuver.preprocessing import (
+    DERIVATIVES,
+    _prepare,
+    _Prepared,
+    _uniform,
+    noise_ratio,
+)
+from seafmu.identification.maneuver.simulation import _nrmse_per_dof, _sim_setup, _SimSetup, _trace
+from seafmu.identification.maneuver.statistics import (
+    _autocorr_inflation,
+    _is_diag,
+    _rel_halfwidth,
+    _sanity,
+    _whiteness,
+)
+from seafmu.identification.maneuver.terms import _sym, effect_names, plant_matrices
+from seafmu.identification.trial import (
+    MAX_ABS,
+    TrialError,
+)
+
+METHODS = ("ls", "output_error")
+CORIOLIS = ("auto", "vessel", "iterate", "joint")
+
+
+def identify_maneuver(
+    data: ManeuverData,
+    vessel: VesselSpec,
+    method: str = "ls",
+    validation_fraction: float = 0.3,
+    *,
+    coriolis: str = "auto",
+    damping: str = "full",
+    derivative: str = "auto",
+    smoothing: float | None = None,
+    polyorder: int = 4,
+    oe_added_mass: bool = False,
+    oe_base: str = "vessel",
+    segment: float = 30.0,
+    sim_dt: float = 0.05,
+    max_nfev: int = 40,
+    effect: str | None = None,
+    oe_start: dict[str, float] | None = None,
+) -> FitResult:
+    """Identify M, D_L, D_Q from a maneuver log (see the module docstring for the methods).
+
+    The first 1 − ``validation_fraction`` of the log is fitted, the rest held out.
+    ``coriolis``: "vessel" (C and g from the vessel file's M, the thesis's variant), "iterate"
+    (C from the estimated M until it settles), "joint" (force form, M solved with its own
+    Coriolis terms; ``damping="diagonal"`` restricts D_L, D_Q to diagonals), "auto" (= "vessel"
+    when the thrusters span all DOFs, else "joint"). ``derivative``/``smoothing``: how nu_dot is
+    obtained (``_prepare``). Output error: ``oe_added_mass`` also fits the added-mass diagonal;
+    ``oe_base`` = "vessel" keeps every other entry from the vessel file, "ls" from the LS fit.
+    ``segment`` s: restart length of the simulations, on a grid of about ``sim_dt`` s.
+    ``effect`` (output error only): a diagnosis extension, "current" (NED current fitted, damping
+    on nu - nu_c) or "constant_force" (a force per DOF); ``oe_start``: start values by name.
+    """
+    # Over 80 lines: 16 keyword arguments and their documentation, and the FitResult built field by
+    # field, are half of it; the body is the sequence check -> prepare and LS (with the smoothing
+    # choice) -> final estimate -> simulation scores -> warnings, each step a helper below.
+    _check_log(data, vessel, method, validation_fraction, coriolis, damping, oe_base, effect)
+    d = vessel.dof
+    warnings: list[str] = []
+    data = _uniform(data, warnings)
+    if derivative not in DERIVATIVES:
+        raise ValueError(f"derivative must be one of {', '.join(DERIVATIVES)}, got {derivative!r}")
+    if derivative == "auto":
+        derivative = "measured" if data.nu_dot is not None else "savgol"
+    n = data.n
+    i_split = n if validation_fraction == 0 else round(n * (1.0 - validation_fraction))
+
+    plant = plant_matrices(vessel)
+    M_RB = plant["M_RB"]
+    coriolis = _coriolis_form(vessel, coriolis, damping, warnings)
+
+    smoothing, prep, rows, ls, fit_setup, ratio, scores = _ls_with_smoothing(
+        data, vessel, plant, derivative, smoothing, polyorder, i_split, segment, sim_dt, coriolis, damping,
+        warnings)
+    tau_cov = np.cov((prep.tau[rows] / np.maximum(prep.tau[rows].std(axis=0), 1e-12)).T)
+    tau_rank = int(np.sum(np.linalg.eigvalsh(tau_cov) > 1e-8))
+    if tau_rank < d:
+        warnings.append(f"the logged forces excite only {tau_rank} of {d} independent directions")
+    if prep.dt > 0.05 and derivative != "measured" and method == "ls":
+        warnings.append(f"coarse sampling ({prep.dt:g} s): differentiation bias grows as dt^2; "
+                        "prefer method='output_error' for final numbers")
+
+    nu_names = NU_NAMES[d]
+    nu_rms = np.sqrt(np.mean(prep.nu_raw[rows] ** 2, axis=0))
+    val_setup = _sim_setup(vessel, prep, i_split, n, segment, sim_dt, scale=fit_setup.scale)
+    extras: dict[str, Any] = {
+        "preprocessing": prep.note,
+        "noise_ratio": ratio,
+        "smoothing_s": smoothing,
+        "smoothing_scores": scores,
+        "source": data.source,
+        "coriolis": coriolis,
+        "ls_form": ls.note,
+        "segment_s": segment,
+        "sim_dt_s": fit_setup.sim.h,
+        "ls_matrices": {"M": ls.M.tolist(), "D_L": ls.D_L.tolist(), "D_Q": ls.D_Q.tolist()},
+        "vessel_matrices": {k: v.tolist() for k, v in plant.items()},
+        "equation_error_rms": np.sqrt(np.mean(ls.residual**2, axis=0)).tolist(),
+        "fit_samples": [0, i_split],
+        "validation_samples": [i_split, n],
+    }
+
+    M, D_L, D_Q, names, values, ci, corr, n_res, method_label = _estimate(
+        method, vessel, prep, fit_setup, ls, plant, oe_added_mass, oe_base, max_nfev, warnings, effect,
+        oe_start, extras)
+    fitted = set(names)
+
+    # simulation NRMSE (same for both methods)
+    eff = extras.get("effect_terms") if method != "ls" else None
+    nrmse_fit, nrmse_validation, res_ok = _simulation_scores(
+        fit_setup, val_setup if validation_fraction > 0 else None, M, D_L, D_Q, eff, extras, warnings)
+    rss = float(np.sum(res_ok**2))
+    aic, bic = fitting.aic_bic(rss, res_ok.size, len(names))
+    whiteness = _whiteness(res_ok, nu_names)
+
+    warnings += _sanity(M, D_L, D_Q, M_RB, ci, nu_rms, nu_names, fitted)
+    nonid = fitting.nonidentifiable_pairs(names, corr)
+    warnings += _evidence_warnings(names, values, ci, nonid, n_res)
+    extras["matrices"] = {"M": M.tolist(), "D_L": D_L.tolist(), "D_Q": D_Q.tolist()}
+    return FitResult(
+        params=dict(zip(names, (float(v) for v in values), strict=True)),
+        ci95=ci,
+        correlation=corr,
+        param_names=list(names),
+        nonidentifiable=nonid,
+        nrmse_fit=nrmse_fit,
+        nrmse_validation=nrmse_validation,
+        aic=aic,
+        bic=bic,
+        whiteness=whiteness,
+        warnings=warnings,
+        n_samples=int(rows.size),
+        method=method_label,
+        extras=extras,
+    )
+
+
+def _check_log(data: ManeuverData, vessel: VesselSpec, method: str, validation_fraction: float,
+               coriolis: str, damping: str, oe_base: str, effect: str | None) -> None:
+    """The arguments and the log, before anything is computed: a ValueError for a wrong argument,
+    a TrialError (one line per problem) for a log that cannot be fitted."""
+    if effect is not None:
+        effect_names(effect, vessel.dof)  # validates the name
+        if method != "output_error":
+            raise ValueError("an effect extension is fitted by output error (method='output_error')")
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
+    if coriolis not in CORIOLIS:
+        raise ValueError(f"coriolis must be one of {', '.join(CORIOLIS)}, got {coriolis!r}")
+    if damping not in ("full", "diagonal"):
+        raise ValueError(f"damping must be 'full' or 'diagonal', got {damping!r}")
+    if oe_base not in ("vessel", "ls"):
+        raise ValueError(f"oe_base must be 'vessel' or 'ls', got {oe_base!r}")
+    if not 0.0 <= validation_fraction < 0.9:
+        raise ValueError(f"validation_fraction must be in [0, 0.9), got {validation_fraction}")
+    if data.dof != vessel.dof:
+        raise TrialError(
+            f"{data.source}: the log has {data.dof} DOF, vessel '{vessel.name}' has {vessel.dof}"
+        )
+    d = vessel.dof
+    min_n = SAMPLES_PER_REGRESSOR * 3 * d
+    if data.n < min_n:
+        raise TrialError(
+            f"{data.source}: only {data.n} samples; a {d}-DOF maneuver fit needs at least {min_n}"
+        )
+    for name in ("t", "eta", "nu", "tau"):
+        arr = getattr(data, name)
+        if not np.all(np.isfinite(arr)):
+            raise TrialError(f"{data.source}: {name} contains NaN or inf")
+        if np.any(np.abs(arr) > MAX_ABS):
+            raise TrialError(f"{data.source}: {name} has values out of range (|value| > {MAX_ABS:g}; "
+                             "squares in the fit would overflow)")
+    if np.any(np.diff(data.t) <= 0):
+        raise TrialError(f"{data.source}: time is not strictly increasing")
+    problems = _gap_problems(data.t, "sample ", 2) + _excitation_problems(
+        data.nu, data.tau, list(NU_NAMES[d]), [f"tau_{n}" for n in TAU_NAMES[d]], NU_NAMES[d])
+    if problems:
+        raise TrialError("\n".join(f"{data.source}: {p}" for p in problems))
+
+
+def _ls_with_smoothing(data: ManeuverData, vessel: VesselSpec, plant: dict[str, np.ndarray],
+                       derivative: str, smoothing: float | None, polyorder: int, i_split: int,
+                       segment: float, sim_dt: float, coriolis: str, damping: str,
+                       warnings: list[str]) -> tuple:
+    """The LS fit with its preprocessing; returns (smoothing, prep, rows, ls, fit_setup, noise ratio,
+    smoothing scores)."""
+    n, d = data.n, vessel.dof
+    min_n = SAMPLES_PER_REGRESSOR * 3 * d
+    # Smoothing: a clean log needs none; on a noisy one (second-difference noise estimate) the
+    # window is chosen among a few by the LS model's simulated NRMSE on the fitted part.
+    candidates: list[float | None] = [smoothing]
+    ratio = noise_ratio(data.nu)
+    if derivative == "savgol" and smoothing is None and ratio > 2e-3:
+        dt = float(np.median(np.diff(data.t)))
+        candidates = [None] + [s for s in (0.25, 0.5, 1.0, 2.0) if s / dt < 0.05 * n and s > 8 * dt]
+    best: tuple | None = None
+    scores: dict[str, float] = {}
+    for sm in candidates:
+        prep = _prepare(data, derivative, sm, polyorder)
+        rows = np.arange(prep.edge, min(i_split, n - prep.edge))
+        if rows.size < min_n:
+            raise TrialError(
+                f"{data.source}: {rows.size} samples left to fit after the hold-out; need {min_n}"
+            )
+        ls = _run_ls(prep, rows, vessel, plant, coriolis, damping, warnings if len(candidates) == 1 else [])
+        fit_setup = _sim_setup(vessel, prep, 0, i_split, segment, sim_dt)
+        if fit_setup is None:
+            raise TrialError(f"{data.source}: too few samples to simulate the fitted part")
+        score = float("nan")
+        if len(candidates) > 1:
+            sc, _ = _nrmse_per_dof(fit_setup, _sym(ls.M), ls.D_L, ls.D_Q)
+            score = float(np.mean(sc))
+            scores["none" if sm is None else f"{sm:g} s"] = score
+        if best is None or (np.isfinite(score) and not score >= best[0]):
+            best = (score, sm, prep, rows, ls, fit_setup)
+    assert best is not None
+    _, smoothing, prep, rows, ls, fit_setup = best
+    if len(candidates) > 1:  # rerun to collect the chosen fit's warnings
+        ls = _run_ls(prep, rows, vessel, plant, coriolis, damping, warnings)
+    return smoothing, prep, rows, ls, fit_setup, ratio, scores
+
+
+def _simulation_scores(fit_setup: _SimSetup, val_setup: _SimSetup | None, M: np.ndarray, D_L: np.ndarray,
+                       D_Q: np.ndarray, eff: dict[str, np.ndarray] | None, extras: dict[str, Any],
+                       warnings: list[str]) -> tuple[float, float, np.ndarray]:
+    """Simulation NRMSE on the fitted and the held-out part (per DOF into ``extras``, with the
+    prediction traces) and the normalised residual of the fitted part (1e3 where it diverged)."""
+    d = M.shape[0]
+    nu_names = NU_NAMES[d]
+    nr_fit, res_fit = _nrmse_per_dof(fit_setup, M, D_L, D_Q, eff)
+    if val_setup is not None:
+        nr_val, _ = _nrmse_per_dof(val_setup, M, D_L, D_Q, eff)
+        extras["n_validation"] = int(val_setup.mask.sum() * d)
+        nrmse_validation = float(np.mean(nr_val))
+        extras["nrmse_validation_per_dof"] = dict(zip(nu_names, nr_val.tolist(), strict=True))
+    else:
+        nrmse_validation = float("nan")
+    nrmse_fit = float(np.mean(nr_fit))
+    extras["nrmse_fit_per_dof"] = dict(zip(nu_names, nr_fit.tolist(), strict=True))
+    extras["nu_names"] = list(nu_names)
+    extras["predictions"] = [_trace(fit_setup, M, D_L, D_Q, "fit", eff)]
+    if val_setup is not None:
+        extras["predictions"].append(_trace(val_setup, M, D_L, D_Q, "validation", eff))
+    if not np.all(np.isfinite(res_fit)):
+        warnings.append("the fitted model diverges when simulated against the trial (unstable)")
+        res_ok = np.nan_to_num(res_fit, nan=1e3)
+    else:
+        res_ok = res_fit
+    return nrmse_fit, nrmse_validation, res_ok
+
+
+def _evidence_warnings(names: list[str], values: np.ndarray, ci: dict[str, tuple[float, float]],
+                       nonid: list, n_res: int) -> list[str]:
+    """Warnings about how well the trial determines the parameters."""
+    warnings: list[str] = []
+    if nonid:
+        warnings.append(f"{len(nonid)} parameter pair(s) with |correlation| > "
+                        f"{fitting.NONIDENTIFIABLE_CORR}: not separately identifiable from this trial "
+                        "(see nonidentifiable)")
+    wide = [k for k in names if _is_diag(k) and _rel_halfwidth(ci[k], values[names.index(k)]) > 0.5]
+    if wide:
+        warnings.append(f"{len(wide)} diagonal parameter(s) with a 95 % CI wider than +-50 % of the value "
+                        f"(poorly excited): {', '.join(wide[:8])}{' ...' if len(wide) > 8 else ''}")
+    if SAMPLES_PER_REGRESSOR * len(names) > n_res:
+        warnings.append(f"{len(names)} parameters from {n_res} equations: too few data per parameter")
+    return warnings
+
+
+def _coriolis_form(vessel: VesselSpec, coriolis: str, damping: str, warnings: list[str]) -> str:
+    """The LS form: "auto" resolves to "vessel" when the thrusters span all DOFs, else "joint"."""
+    d = vessel.dof
+    B = thruster_matrix(vessel.thrusters, d)
+    rank = int(np.sum(np.linalg.eigvalsh(B @ B.T) > 1e-10 * np.max(np.linalg.eigvalsh(B @ B.T))))
+    if coriolis == "auto":
+        coriolis = "vessel" if rank == d else "joint"
+    if coriolis != "joint" and damping != "full":
+        raise ValueError("damping='diagonal' needs coriolis='joint' (the acceleration form is per row, full)")
+    if coriolis != "joint" and rank < d:
+        warnings.append(f"the thrusters span only {rank} of {d} DOFs: in the acceleration form M^-1 is not "
+                        "identifiable from tau (use coriolis='joint')")
+    return coriolis
+
+
+def _estimate(method: str, vessel: VesselSpec, prep: _Prepared, fit_setup: _SimSetup, ls: _LSResult,
+              plant: dict[str, np.ndarray], oe_added_mass: bool, oe_base: str, max_nfev: int,
+              warnings: list[str], effect: str | None, oe_start: dict[str, float] | None,
+              extras: dict[str, Any]) -> tuple:
+    """The final estimate: the LS fit itself, or output error started from it; its CIs and label."""
+    if method == "ls":
+        M, D_L, D_Q = ls.M, ls.D_L, ls.D_Q
+        names, values = ls.names, ls.values
+        infl = _autocorr_inflation(ls.residual)
+        cov = ls.cov * infl
+        n_res = ls.n_rows
+        ci = fitting.confidence_intervals(names, values, cov, n_res)
+        corr = fitting.correlation_matrix(cov)
+        extras["ci_inflation"] = infl
+        method_label = f"maneuver LS ({ls.note})"
+    else:
+        (M, D_L, D_Q, names, values, cov, ci, corr, n_res, oe_info) = _output_error(
+            vessel, prep, fit_setup, ls, plant, oe_added_mass, oe_base, max_nfev, warnings, effect, oe_start)
+        extras.update(oe_info)
+        method_label = (f"maneuver output error (diagonal D_L, D_Q{', added mass' if oe_added_mass else ''}; "
+                        f"start: {ls.note}; other entries from the "
+                        f"{'vessel file' if oe_base == 'vessel' else 'LS fit'})")
+    return M, D_L, D_Q, names, values, ci, corr, n_res, method_label

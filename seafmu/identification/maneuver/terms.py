@@ -1,0 +1,98 @@
+"""Model terms of M nu_dot + C(nu) nu + D_L nu + D_Q |nu| nu + g(eta) = tau, vectorised over
+samples (and over parameter sets in the simulator), and the diagnosis extensions' parameter names.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from seafmu.components.vessel_model import VesselModel
+from seafmu.components.vessel_spec import TAU_NAMES, VesselSpec
+
+
+def _sym(A: np.ndarray) -> np.ndarray:
+    return 0.5 * (A + np.swapaxes(A, -1, -2))
+
+
+def coriolis_force(M: np.ndarray, nu: np.ndarray) -> np.ndarray:
+    """C_M(nu) nu for every row of ``nu`` (..., d) with the symmetric part of M (..., d, d).
+
+    Same formula as ``kinematics.m2c`` / ``VesselModel``: [nu2 x a; nu1 x a + nu2 x b] with
+    [a; b] = M nu (6 DOF), [-r a_y, r a_x, u a_y - v a_x] (3 DOF). Linear in M.
+    """
+    a = np.einsum("...ij,...j->...i", _sym(M), nu)
+    if nu.shape[-1] == 6:
+        u, v, w, p, q, r = (nu[..., i] for i in range(6))
+        a1, a2, a3, b1, b2, b3 = (a[..., i] for i in range(6))
+        return np.stack([
+            q * a3 - r * a2, r * a1 - p * a3, p * a2 - q * a1,
+            v * a3 - w * a2 + q * b3 - r * b2,
+            w * a1 - u * a3 + r * b1 - p * b3,
+            u * a2 - v * a1 + p * b2 - q * b1,
+        ], axis=-1)
+    u, v, r = nu[..., 0], nu[..., 1], nu[..., 2]
+    ax, ay = a[..., 0], a[..., 1]
+    return np.stack([-r * ay, r * ax, u * ay - v * ax], axis=-1)
+
+
+def coriolis_tensor(M: np.ndarray) -> np.ndarray:
+    """T (d, d*d) with C_M(nu) nu = T (nu kron nu): the quadratic form by polarisation."""
+    d = M.shape[0]
+    eye = np.eye(d)
+    q = coriolis_force(M, eye)  # row j: Q(e_j)
+    T = np.zeros((d, d, d))
+    for j in range(d):
+        T[:, j, j] = q[j]
+        for k in range(j + 1, d):
+            T[:, j, k] = T[:, k, j] = 0.5 * (coriolis_force(M, eye[j] + eye[k]) - q[j] - q[k])
+    return T.reshape(d, d * d)
+
+
+class _Restoring:
+    """g(eta) of the vessel file (roll and pitch enter; zero for 3 DOF), vectorised."""
+
+    def __init__(self, vessel: VesselSpec) -> None:
+        self.dof = vessel.dof
+        rs = vessel.restoring
+        if self.dof == 6 and rs is not None:
+            W, Bu = rs.weight, rs.buoyancy
+            self.wb = W - Bu
+            self.gx, self.gy, self.gz = (W * np.asarray(rs.r_g) - Bu * np.asarray(rs.r_b)).tolist()
+        else:
+            self.wb = self.gx = self.gy = self.gz = 0.0
+
+    def __call__(self, phi: np.ndarray, theta: np.ndarray) -> np.ndarray:
+        if self.dof == 3:
+            return np.zeros((*np.shape(phi), 3))
+        sp, cp, st, ct = np.sin(phi), np.cos(phi), np.sin(theta), np.cos(theta)
+        wb, gx, gy, gz = self.wb, self.gx, self.gy, self.gz
+        return np.stack([
+            wb * st,
+            -wb * ct * sp,
+            -wb * ct * cp,
+            -gy * ct * cp + gz * ct * sp,
+            gz * st + gx * ct * cp,
+            -gx * ct * sp - gy * st,
+        ], axis=-1)
+
+
+def plant_matrices(vessel: VesselSpec) -> dict[str, np.ndarray]:
+    """M, D_L, D_Q as the plant simulates them (symmetric parts of M_RB and M_A)."""
+    vm = VesselModel(vessel)
+    return {"M": vm.M.copy(), "D_L": vm.D_L.copy(), "D_Q": vm.D_Q.copy(), "M_RB": vm.M_RB.copy()}
+
+
+
+# Diagnosis extensions of a maneuver fit (catalogue names; docs/maneuver_identification.md).
+MANEUVER_EFFECTS = ("current", "constant_force")
+
+
+def effect_names(effect: str | None, d: int) -> list[str]:
+    """Parameter names a maneuver extension adds: the NED current, or a force per DOF."""
+    if effect is None:
+        return []
+    if effect == "current":
+        return ["v_c_north", "v_c_east"]
+    if effect == "constant_force":
+        return [f"F_0[{n}]" for n in TAU_NAMES[d]]
+    raise ValueError(f"maneuver effect must be one of {', '.join(MANEUVER_EFFECTS)}, got {effect!r}")
