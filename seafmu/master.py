@@ -660,8 +660,8 @@ def _loop(scenario: Scenario, units: list[_Unit], mode: str, progress: bool, log
                 break
             t = k * h
             apply_events(t)
-            # Jacobi: every FMU reads the bus as it stands before any FMU steps (fancy indexing copies)
-            inputs = [bus[idx] for idx in src_idx] if jacobi else src_idx
+            # Jacobi: every FMU reads the bus as it stood before any FMU stepped; Gauss-Seidel the bus
+            src = bus.copy() if jacobi else bus
             for j, u in enumerate(units):
                 m = mults[j]
                 if k % m:
@@ -671,7 +671,7 @@ def _loop(scenario: Scenario, units: list[_Unit], mode: str, progress: bool, log
                 t0 = perf()
                 try:
                     if len(src_idx[j]):
-                        u.set_inputs(inputs[j] if jacobi else bus[src_idx[j]])
+                        u.set_inputs(src[src_idx[j]])
                     u.do_step(t, h * m)
                     if m == 1:
                         bus[out_slices[j]] = u.get_outputs()
