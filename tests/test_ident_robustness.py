@@ -491,3 +491,11 @@ def test_output_error_scales_linearly_with_the_log_length() -> None:
     ratio = data.n / small.n
     mem_exp = math.log(m_big / m_small) / math.log(ratio)
     assert mem_exp < 1.3, (m_small, m_big, mem_exp, t_small, t_big)
+
+
+def test_a_decay_jumping_from_zero_to_1e14_is_one_line_error_not_a_crash(tmp_path: Path) -> None:
+    """Found by the random decay records: the Jacobian overflowed inside the optimiser."""
+    csv = "t,u\n0.0,0.0\n" + "".join(f"{0.001 * i!r},1e14\n" for i in range(1, 20))
+    with pytest.raises(TrialError, match="overflowed") as exc:
+        identify(load_trial(_trial(tmp_path, csv)))
+    assert "\n" not in str(exc.value)

@@ -609,6 +609,16 @@ def _weights(model: TSModel, preps: list[_Prep]) -> np.ndarray | None:
     return 1.0 / np.where(sd > 0, sd, 1.0)
 
 
+# A Jacobian entry beyond this (output units per parameter unit) squares to overflow in the statistics:
+# only data out of any physical range get there (e.g. a decay jumping from 0 to 1e14 in one sample).
+_JAC_MAX = 1e100
+
+
+def _span(preps: list[_Prep]) -> float:
+    """Largest output step between neighbouring samples (for the overflow message)."""
+    return max((float(np.max(np.abs(np.diff(p.y, axis=0)))) for p in preps if len(p.y) > 1), default=0.0)
+
+
 def fit_timeseries(trial: Trial, model: TSModel, start: dict[str, float] | None = None,
                    start_ics: list[tuple[float, ...]] | None = None, sp: Split | None = None) -> FitResult:
     """Output-error fit of a time-series model; held-out error on the split's validation data."""
@@ -645,8 +655,17 @@ def fit_timeseries(trial: Trial, model: TSModel, start: dict[str, float] | None 
         return np.where(np.isfinite(res), res, 1e6)
 
     with np.errstate(all="ignore"):
-        sol = least_squares(residual, x0, bounds=(lo, hi), method="trf", x_scale="jac",
-                            ftol=1e-9, xtol=1e-9, gtol=1e-10, max_nfev=60 * (len(x0) + 1))
+        try:
+            sol = least_squares(residual, x0, bounds=(lo, hi), method="trf", x_scale="jac",
+                                ftol=1e-9, xtol=1e-9, gtol=1e-10, max_nfev=60 * (len(x0) + 1))
+        except ValueError as exc:  # scipy: "array must not contain infs or NaNs" (a Jacobian overflowed)
+            if "inf" not in str(exc) and "NaN" not in str(exc):
+                raise
+            sol = None
+    if sol is None or not np.all(np.abs(sol.jac) < _JAC_MAX):  # also catches NaN
+        raise TrialError(f"{trial.name}: the output-error fit overflowed (the outputs jump by "
+                         f"{_span(sp.fit):.3g} within a few samples): check the output column's values "
+                         "and unit")
     theta = sol.x
     vals = model.at(theta[:nfree])
     resid = sol.fun
