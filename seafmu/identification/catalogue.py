@@ -8,15 +8,12 @@ the finding in words a naval architect would use.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
+from seafmu.identification import effects
 from seafmu.identification.trial import ROTATIONAL, Trial
-
-# Effects with a maneuver-level extension (maneuver.terms.effect_names; output error on the whole log).
-MANEUVER_EFFECTS = ("current", "constant_force")
 
 
 @dataclass(frozen=True)
@@ -59,6 +56,10 @@ CATALOGUE: dict[str, Effect] = {e.name: e for e in (
 
 NAMES = tuple(CATALOGUE)
 
+# Effects with a maneuver-level extension (their objects in effects/ say how; output error on the
+# whole log), in catalogue order.
+MANEUVER_EFFECTS = effects.maneuver_effects(NAMES)
+
 
 def _has_both_signs(trial: Trial) -> bool:
     us = [np.asarray(r.u, dtype=float).ravel() for r in trial.runs if r.u is not None]
@@ -86,8 +87,8 @@ def not_applicable(name: str, trial: Trial) -> str | None:
     if k == "maneuver":
         if name in MANEUVER_EFFECTS:
             return None
-        return ("a maneuver log is fitted as a whole model; of the catalogue only current and constant_force "
-                "are maneuver-level extensions so far")
+        return (f"a maneuver log is fitted as a whole model; of the catalogue only "
+                f"{' and '.join(MANEUVER_EFFECTS)} are maneuver-level extensions so far")
     if sway_yaw:
         return None if name == "coupling" else "a sway_yaw trial tests the coupling only"
     if name == "coupling":
@@ -208,26 +209,15 @@ def evidence(name: str, params: dict[str, float], trial: Trial, base_val: float,
              delta_aic: float, runner_up: str | None = None) -> str:
     """One sentence naming the cause in a naval architect's words, with the numbers that back it."""
     if trial.kind == "maneuver":
-        text = _maneuver_evidence(name, params)
+        obj = effects.get(name)
+        assert obj is not None and obj.maneuver
+        text = obj.maneuver_evidence(params)
     else:
         text = _evidence_text(name, params, trial)
     gain = (f" (held-out NRMSE {base_val:.3g} -> {ext_val:.3g}, ratio {base_val / ext_val:.2f}, "
             f"dAIC {delta_aic:.1f})") if ext_val > 0 else ""
     alias = f"; '{runner_up}' explains the data almost as well" if runner_up else ""
     return text[0].upper() + text[1:] + gain + alias + "."
-
-
-def _maneuver_evidence(name: str, p: dict[str, float]) -> str:
-    """The cause in words for a maneuver extension (NED current, force per DOF)."""
-    if name == "current":
-        vn, ve = p.get("v_c_north", 0.0), p.get("v_c_east", 0.0)
-        towards = math.degrees(math.atan2(ve, vn)) % 360.0
-        return (f"the hull moves through a current of {_fmt(math.hypot(vn, ve))} m/s towards "
-                f"{towards:.0f} deg (north {_fmt(vn)}, east {_fmt(ve)} m/s): the damping acts on the "
-                "velocity through the water")
-    forces = ", ".join(f"{k[4:-1]} = {_fmt(v)} {'N' if k[4:-1] in 'XYZ' else 'N·m'}"
-                       for k, v in p.items() if k.startswith("F_0["))
-    return f"a steady external force acts on the hull ({forces}): wind, tether pull, trim or buoyancy error"
 
 
 def _evidence_text(name: str, params: dict[str, float], trial: Trial) -> str:

@@ -295,7 +295,8 @@ def explain(trial: Trial, base: FitResult, cands: list[Candidate], cause: Candid
             if failed:
                 why = f"every candidate fit failed ({failed[0].effect}: {failed[0].reason})"
             elif trial.kind == "maneuver":
-                why = ("none of the maneuver-level extensions (current, constant_force) was asked for; "
+                why = (f"none of the maneuver-level extensions ({', '.join(catalogue.MANEUVER_EFFECTS)}) was "
+                       "asked for; "
                        "the other catalogue effects extend 1-2-DOF trial models")
             else:
                 why = f"no catalogue effect is observable in this {trial.kind} trial"

@@ -13,7 +13,13 @@ from seafmu.identification import arrowlm, fitting
 from seafmu.identification.maneuver.preprocessing import _Prepared
 from seafmu.identification.maneuver.simulation import _sim_residual, _SimSetup
 from seafmu.identification.maneuver.statistics import _autocorr_inflation
-from seafmu.identification.maneuver.terms import _Restoring, _sym, coriolis_force, effect_names
+from seafmu.identification.maneuver.terms import (
+    _Restoring,
+    _sym,
+    coriolis_force,
+    effect_names,
+    maneuver_effect,
+)
 from seafmu.identification.trial import TrialError
 
 
@@ -215,16 +221,16 @@ def _output_error(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | None, 
     e0 = len(names)  # effect parameters follow the model's
     enames = effect_names(effect, d)
     names += enames
-    p0 = np.array([*p0, *([0.0] * len(enames))], dtype=float)
+    absent = [maneuver_effect(effect).absent] * len(enames) if effect is not None else []
+    p0 = np.array([*p0, *absent], dtype=float)
     nu_abs = np.sqrt(np.mean(prep.nu_raw**2, axis=0))
     # parameter scales: a linear coefficient is worth its quadratic one times the rms speed
     sQ = np.maximum(np.abs(p0[d : 2 * d]), 1e-3 * np.diag(plant["M"]))
     sL = np.maximum(np.abs(p0[:d]), sQ * nu_abs + 1e-6)
     scales = [*sL, *sQ] + ([*np.abs(p0[2 * d : 3 * d])] if added_mass else [])
-    if effect == "constant_force":  # a few % of the force each DOF sees
-        scales += list(0.05 * np.maximum(prep.tau.std(axis=0), 1e-3))
-    elif effect == "current":
-        scales += [0.1, 0.1]  # m/s
+    eff = maneuver_effect(effect) if effect is not None else None
+    if eff is not None:
+        scales += eff.maneuver_scales(prep.tau)
     scales = np.maximum(np.array(scales), 1e-9)
     # initial state of every segment is estimated too (multiple shooting without continuity):
     # restarting from a noisy measured state biases the damping (measured: -7 % in sway)
@@ -248,12 +254,8 @@ def _output_error(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | None, 
         return M, DL, DQ
 
     def terms(P: np.ndarray) -> dict[str, np.ndarray]:
-        """The effect's terms for the simulator: F0 (K, d) or vc (K, 2)."""
-        if effect == "constant_force":
-            return {"F0": P[:, e0 : e0 + d]}
-        if effect == "current":
-            return {"vc": P[:, e0 : e0 + 2]}
-        return {}
+        """The effect's terms for the simulator (its object's ``maneuver_terms``: F0, vc)."""
+        return eff.maneuver_terms(P[:, e0:]) if eff is not None else {}
 
     def residuals(Z: np.ndarray) -> np.ndarray:
         """Residuals per segment (K, S, R) for several scaled parameter sets, R = (L + 1) d rows
@@ -287,7 +289,7 @@ def _output_error(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | None, 
     # start from the LS diagonal, unless the vessel file's values simulate the trial better
     # (a poorly exciting log gives an LS model that may not even be stable)
     p_file = np.concatenate([np.diag(plant["D_L"]), np.diag(plant["D_Q"])]
-                            + ([np.diag(plant["M"])] if added_mass else []) + [np.zeros(len(enames))])
+                            + ([np.diag(plant["M"])] if added_mass else []) + [np.array(absent, dtype=float)])
     x0z = (x0_meas / x_scale).ravel()
     z_ls, z_file = np.concatenate([p0 / scales, x0z]), np.concatenate([p_file / scales, x0z])
     costs = np.sum(residuals(np.vstack([z_ls, z_file])) ** 2, axis=(1, 2))

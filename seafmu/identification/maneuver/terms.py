@@ -7,7 +7,10 @@ from __future__ import annotations
 import numpy as np
 
 from seafmu.components.vessel_model import VesselModel
-from seafmu.components.vessel_spec import TAU_NAMES, VesselSpec
+from seafmu.components.vessel_spec import VesselSpec
+from seafmu.identification import effects
+from seafmu.identification.catalogue import MANEUVER_EFFECTS
+from seafmu.identification.effects import CatalogueEffect
 
 
 def _sym(A: np.ndarray) -> np.ndarray:
@@ -83,16 +86,16 @@ def plant_matrices(vessel: VesselSpec) -> dict[str, np.ndarray]:
 
 
 
-# Diagnosis extensions of a maneuver fit (catalogue names; docs/maneuver_identification.md).
-MANEUVER_EFFECTS = ("current", "constant_force")
-
-
 def effect_names(effect: str | None, d: int) -> list[str]:
-    """Parameter names a maneuver extension adds: the NED current, or a force per DOF."""
+    """Parameter names a maneuver extension adds (its effect object's, ``effects/<name>.py``)."""
     if effect is None:
         return []
-    if effect == "current":
-        return ["v_c_north", "v_c_east"]
-    if effect == "constant_force":
-        return [f"F_0[{n}]" for n in TAU_NAMES[d]]
-    raise ValueError(f"maneuver effect must be one of {', '.join(MANEUVER_EFFECTS)}, got {effect!r}")
+    return maneuver_effect(effect).maneuver_params(d)
+
+
+def maneuver_effect(effect: str) -> CatalogueEffect:
+    """The effect object of a maneuver extension; a ValueError names the ones there are."""
+    obj = effects.get(effect)
+    if obj is None or not obj.maneuver:
+        raise ValueError(f"maneuver effect must be one of {', '.join(MANEUVER_EFFECTS)}, got {effect!r}")
+    return obj

@@ -1,0 +1,32 @@
+"""Constant force: a steady external force or moment (wind, tether, trim, buoyancy error)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from seafmu.identification.effects.base import CatalogueEffect, fmt, register
+
+
+@register
+class ConstantForce(CatalogueEffect):
+    name = "constant_force"
+    maneuver = True
+
+    def maneuver_params(self, d: int) -> list[str]:
+        """One force per DOF: F_0[X], F_0[Y], ... (N or N m)."""
+        # imported here: the catalogue imports this module, which stays light without the components
+        from seafmu.components.vessel_spec import TAU_NAMES
+
+        return [f"F_0[{n}]" for n in TAU_NAMES[d]]
+
+    def maneuver_scales(self, tau: np.ndarray) -> list[float]:
+        return list(0.05 * np.maximum(tau.std(axis=0), 1e-3))  # a few % of the force each DOF sees
+
+    def maneuver_terms(self, P: np.ndarray) -> dict[str, np.ndarray]:
+        return {"F0": P}
+
+    def maneuver_evidence(self, params: dict[str, float]) -> str:
+        forces = ", ".join(f"{k[4:-1]} = {fmt(v)} {'N' if k[4:-1] in 'XYZ' else 'N·m'}"
+                           for k, v in params.items() if k.startswith("F_0["))
+        return (f"a steady external force acts on the hull ({forces}): wind, tether pull, trim or buoyancy "
+                "error")

@@ -1,0 +1,73 @@
+"""Catalogue effects as objects (seafmu/identification/effects/): registry, the maneuver family's
+hooks, and adding an effect as one class (docs/architecture.md, "Identification: where changes go")."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from seafmu.components.vessel_spec import load_vessel
+from seafmu.identification import catalogue, effects
+from seafmu.identification.effects.base import REGISTRY, CatalogueEffect
+from seafmu.identification.maneuver import (
+    MANEUVER_EFFECTS,
+    add_sensor_noise,
+    effect_names,
+    identify_maneuver,
+    simulate_maneuver,
+)
+
+
+def test_registry_holds_catalogue_effects_and_the_maneuver_family() -> None:
+    effects.get("current")  # loads the package's modules
+    assert set(REGISTRY) <= set(catalogue.CATALOGUE)
+    assert MANEUVER_EFFECTS == catalogue.MANEUVER_EFFECTS == ("current", "constant_force")
+    assert effect_names("current", 3) == ["v_c_north", "v_c_east"]
+    assert effect_names("constant_force", 6) == [f"F_0[{n}]" for n in "XYZKMN"]
+    with pytest.raises(ValueError, match="maneuver effect must be one of current, constant_force"):
+        effect_names("deadband", 3)
+    tau = np.array([[1.0, 2.0, 3.0], [3.0, 2.0, 1.0]])
+    expected = list(0.05 * np.maximum(tau.std(axis=0), 1e-3))
+    assert effects.get("constant_force").maneuver_scales(tau) == expected
+    P = np.array([[0.1, -0.2]])
+    assert set(effects.get("current").maneuver_terms(P)) == {"vc"}
+
+
+def test_evidence_of_a_maneuver_effect_comes_from_its_object() -> None:
+    text = effects.get("current").maneuver_evidence({"v_c_north": 0.0, "v_c_east": 0.1})
+    assert "0.1 m/s towards 90 deg" in text
+    text = effects.get("constant_force").maneuver_evidence({"F_0[X]": 2.0, "F_0[N]": -1.0})
+    assert "X = 2 N" in text and "N = -1 N·m" in text
+
+
+class _SurgePull(CatalogueEffect):
+    """The worked example of docs/architecture.md: a tow-line pull in surge only."""
+
+    name = "surge_pull_example"
+    maneuver = True
+
+    def maneuver_params(self, d: int) -> list[str]:
+        return ["F_pull"]
+
+    def maneuver_scales(self, tau: np.ndarray) -> list[float]:
+        return [0.05 * max(float(tau[:, 0].std()), 1e-3)]
+
+    def maneuver_terms(self, P: np.ndarray) -> dict[str, np.ndarray]:
+        F0 = np.zeros((P.shape[0], 3))
+        F0[:, 0] = P[:, 0]
+        return {"F0": F0}
+
+    def maneuver_evidence(self, params: dict[str, float]) -> str:
+        return f"a tow line pulls with {params['F_pull']:.3g} N"
+
+
+def test_a_new_effect_is_one_class(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Registered, the class is fitted by the maneuver output error without touching the fitter."""
+    effects.get("current")
+    monkeypatch.setitem(REGISTRY, _SurgePull.name, _SurgePull())
+    vessel = load_vessel("amv_osf")
+    data, _ = simulate_maneuver(vessel, duration=60.0, dt=0.05, seed=2, plant_params={})
+    data = add_sensor_noise(data, vessel, 1.0, seed=2)
+    fit = identify_maneuver(data, vessel, method="output_error", effect=_SurgePull.name, max_nfev=4)
+    assert fit.param_names[-1] == "F_pull" and np.isfinite(fit.params["F_pull"])
+    assert "F_pull" in fit.ci95
