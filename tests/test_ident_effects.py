@@ -20,7 +20,11 @@ from seafmu.identification.maneuver import (
 
 def test_registry_holds_catalogue_effects_and_the_maneuver_family() -> None:
     effects.get("current")  # loads the package's modules
-    assert set(REGISTRY) <= set(catalogue.CATALOGUE)
+    assert set(REGISTRY) == set(catalogue.CATALOGUE)  # every catalogue effect is an object
+    for name, obj in REGISTRY.items():
+        assert obj.name == name
+        for method in ("applies", "evidence"):
+            assert getattr(type(obj), method) is not getattr(CatalogueEffect, method), (name, method)
     assert MANEUVER_EFFECTS == catalogue.MANEUVER_EFFECTS == ("current", "constant_force")
     assert effect_names("current", 3) == ["v_c_north", "v_c_east"]
     assert effect_names("constant_force", 6) == [f"F_0[{n}]" for n in "XYZKMN"]
@@ -46,6 +50,12 @@ class _SurgePull(CatalogueEffect):
     name = "surge_pull_example"
     maneuver = True
 
+    def applies(self, trial: object) -> str | None:
+        return "a tow line is a maneuver-level effect"
+
+    def evidence(self, params: dict[str, float], trial: object) -> str:
+        return f"a tow line pulls with {params['F_pull']:.3g} N"
+
     def maneuver_params(self, d: int) -> list[str]:
         return ["F_pull"]
 
@@ -58,7 +68,7 @@ class _SurgePull(CatalogueEffect):
         return {"F0": F0}
 
     def maneuver_evidence(self, params: dict[str, float]) -> str:
-        return f"a tow line pulls with {params['F_pull']:.3g} N"
+        return self.evidence(params, None)
 
 
 def test_a_new_effect_is_one_class(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -71,3 +81,16 @@ def test_a_new_effect_is_one_class(monkeypatch: pytest.MonkeyPatch) -> None:
     fit = identify_maneuver(data, vessel, method="output_error", effect=_SurgePull.name, max_nfev=4)
     assert fit.param_names[-1] == "F_pull" and np.isfinite(fit.params["F_pull"])
     assert "F_pull" in fit.ci95
+    assert effects.get(_SurgePull.name).maneuver_evidence(fit.params).startswith("a tow line pulls")
+
+
+def test_applicability_and_words_come_from_the_objects() -> None:
+    """catalogue.not_applicable and catalogue.evidence ask the effect's object."""
+    from seafmu.identification.synthetic import demo_trial
+
+    trial = demo_trial("deadband", seed=0)
+    assert catalogue.not_applicable("deadband", trial) == effects.get("deadband").applies(trial) is None
+    assert catalogue.not_applicable("nonlinear_restoring", trial) == (
+        "needs a 2nd-order decay with a linear restoring baseline")
+    text = catalogue.evidence("deadband", {"n_0": 0.25}, trial, 0.5, 0.25, -12.0)
+    assert text.startswith("The thruster gives no thrust below 0.25 rev/s (deadband)")

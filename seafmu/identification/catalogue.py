@@ -1,9 +1,9 @@
 """The effect catalogue: named one- or two-parameter extensions of a trial's baseline model.
 
 The names are an interface (reports, JSON, tests): keep them spelled exactly so. Each effect says
-which parameters it adds, their "effect absent" value, where it can be observed at all (a steady
-table cannot show a lag; a decay alone cannot separate added mass from damping), and how to say
-the finding in words a naval architect would use.
+which parameters it adds and their "effect absent" value; its object (``effects/<name>.py``) says
+where it can be observed at all (a steady table cannot show a lag; a decay alone cannot separate
+added mass from damping) and how to say the finding in words a naval architect would use.
 """
 
 from __future__ import annotations
@@ -61,87 +61,19 @@ NAMES = tuple(CATALOGUE)
 MANEUVER_EFFECTS = effects.maneuver_effects(NAMES)
 
 
-def _has_both_signs(trial: Trial) -> bool:
-    us = [np.asarray(r.u, dtype=float).ravel() for r in trial.runs if r.u is not None]
-    u = np.concatenate(us) if us else np.zeros(0)
-    return bool(u.size and np.any(u > 0) and np.any(u < 0))
-
-
-def _moves_both_ways(trial: Trial) -> bool:
-    """Speeds (table input or measured output) of both signs, each above 20 % of the largest."""
-    if trial.kind == "static":
-        v = np.concatenate([np.asarray(r.u, dtype=float).ravel() for r in trial.runs])
-    else:
-        v = np.concatenate([np.asarray(r.y, dtype=float).ravel() for r in trial.runs])
-    peak = float(np.max(np.abs(v))) if v.size else 0.0
-    return bool(peak > 0 and np.max(v) > 0.2 * peak and np.min(v) < -0.2 * peak)
-
-
 def not_applicable(name: str, trial: Trial) -> str | None:
     """None if the effect can be observed in this trial, else the reason it cannot."""
-    k, base = trial.kind, trial.baseline
-    static_fs = k == "static" and trial.table == "force_speed"
-    static_thr = k == "static" and trial.table == "thrust_rpm"
-    sway_yaw = trial.dof == "sway_yaw"
-    rpm_step = k == "step" and trial.input_kind == "rpm" and not sway_yaw
-    if k == "maneuver":
+    if trial.kind == "maneuver":
         if name in MANEUVER_EFFECTS:
             return None
         return (f"a maneuver log is fitted as a whole model; of the catalogue only "
                 f"{' and '.join(MANEUVER_EFFECTS)} are maneuver-level extensions so far")
-    if sway_yaw:
+    if trial.dof == "sway_yaw":
         return None if name == "coupling" else "a sway_yaw trial tests the coupling only"
-    if name == "coupling":
-        return "needs a sway_yaw trial (v and r measured)"
-    if name in ("linear_damping", "quadratic_damping"):
-        if not (static_fs or k in ("decay", "step", "decay2")):
-            return "not a damping trial" if k != "pendulum" else "the pendulum law already has both terms"
-        has = {"linear_damping": base in ("linear", "linear_quadratic"),
-               "quadratic_damping": base in ("quadratic", "linear_quadratic")}[name]
-        return "the baseline already has this term" if has else None
-    if name == "coulomb_friction":
-        return None if (static_fs or k in ("decay", "step", "decay2", "pendulum")) else "no motion to oppose"
-    if name == "current":
-        if not (static_fs or k in ("decay", "step")):
-            return "a current shows in damping of a translating or turning hull, not here"
-        if base == "linear":
-            return "with linear damping only, a current is the same model as a constant force"
-        if trial.mirror:
-            return "a mirrored table is antisymmetric by construction: no current can show"
-        if not _moves_both_ways(trial):
-            return ("needs motion ahead and astern: in one direction a current looks like a constant "
-                    "force plus a change of linear damping")
-        return None
-    if name == "constant_force":
-        return None
-    if name == "added_mass":
-        if k == "step" and "mass" in trial.constants and (
-                trial.input_kind == "force" or "thrust_coefficient" in trial.constants):
-            return None
-        if k == "decay2" and "mass" in trial.constants and "stiffness" in trial.constants:
-            return None
-        return ("inertia is separable only with known mass and known force (step) or known stiffness "
-                "(2nd-order decay); otherwise it trades off against damping or restoring")
-    if name == "thrust_quadratic":
-        if (static_thr or rpm_step) and trial.thrust_law == "linear" and not (
-                static_thr and base == "quadratic"):
-            return None
-        return "needs a shaft-speed input with a linear thrust law"
-    if name == "thrust_asymmetry":
-        if not (static_thr or rpm_step):
-            return "needs a shaft-speed input"
-        return None if _has_both_signs(trial) else "all commands have one sign: reverse thrust unseen"
-    if name == "deadband":
-        return None if (static_thr or rpm_step) else "needs a shaft-speed input"
-    if name in ("actuator_lag", "time_delay"):
-        return None if k == "step" else "needs a commanded input over time (step trial)"
-    if name == "saturation":
-        return None if (static_thr or k == "step") else "needs a commanded input"
-    if name == "nonlinear_restoring":
-        if k == "decay2" and trial.restoring == "linear":
-            return None
-        return "needs a 2nd-order decay with a linear restoring baseline"
-    return f"unknown effect '{name}'"
+    obj = effects.get(name)
+    if obj is None:
+        return f"unknown effect '{name}'"
+    return obj.applies(trial)  # the effect's own rule (effects/<name>.py)
 
 
 def applicable(trial: Trial) -> list[str]:
@@ -213,49 +145,10 @@ def evidence(name: str, params: dict[str, float], trial: Trial, base_val: float,
         assert obj is not None and obj.maneuver
         text = obj.maneuver_evidence(params)
     else:
-        text = _evidence_text(name, params, trial)
+        obj = effects.get(name)
+        assert obj is not None, name
+        text = obj.evidence(params, trial)
     gain = (f" (held-out NRMSE {base_val:.3g} -> {ext_val:.3g}, ratio {base_val / ext_val:.2f}, "
             f"dAIC {delta_aic:.1f})") if ext_val > 0 else ""
     alias = f"; '{runner_up}' explains the data almost as well" if runner_up else ""
     return text[0].upper() + text[1:] + gain + alias + "."
-
-
-def _evidence_text(name: str, params: dict[str, float], trial: Trial) -> str:
-    """The cause in words for a 1-2 DOF trial."""
-    rot = trial.dof in ROTATIONAL
-    what = {"surge": "surge", "sway": "sway", "heave": "heave", "roll": "roll", "pitch": "pitch",
-            "yaw": "yaw", "sway_yaw": "sway-yaw"}.get(trial.dof or "", "the")
-    u = lambda p: param_unit(p, trial)  # noqa: E731
-    p = params
-    force = "moment" if rot else "force"
-    text = {
-        "linear_damping": f"the {what} damping has a missing linear (viscous/skin-friction) part, "
-                          f"d_L = {_fmt(p.get('d_L', 0))} {u('d_L')}",
-        "quadratic_damping": f"the {what} resistance grows with the square of speed: a quadratic drag term "
-                             f"d_Q = {_fmt(p.get('d_Q', 0))} {u('d_Q')} is missing",
-        "coulomb_friction": f"a constant-magnitude friction {force} of {_fmt(p.get('f_c', 0))} {u('f_c')} "
-                            f"opposes the motion (bearing, seal or ground friction)",
-        "current": f"the hull moves through a current of {_fmt(p.get('v_c', 0))} {u('v_c')}: the damping "
-                   f"acts on the speed through the water, not the measured speed",
-        "constant_force": f"a steady external {force} of {_fmt(p.get('F_0', 0))} {u('F_0')} acts "
-                          f"(wind, tether pull, trim or a sensor offset)",
-        "added_mass": f"the inertia is not the rigid-body value: an added mass of {_fmt(p.get('m_a', 0))} "
-                      f"{u('m_a')} is missing",
-        "thrust_quadratic": f"thrust grows with n|n| like a propeller's, not linearly with shaft speed "
-                            f"(k_q = {_fmt(p.get('k_q', 0))} {u('k_q')})",
-        "thrust_asymmetry": f"astern thrust is {_fmt(100 * (1 + p.get('eta_rev', 0)))} % of ahead thrust at "
-                            f"the same shaft speed",
-        "deadband": f"the thruster gives no thrust below {_fmt(p.get('n_0', 0))} {u('n_0')} (deadband)",
-        "actuator_lag": f"thrust builds up with a first-order lag of {_fmt(p.get('T_lag', 0))} s after the "
-                        f"command (shaft/actuator dynamics)",
-        "time_delay": f"the response starts {_fmt(p.get('t_d', 0))} s after the command (transport delay)",
-        "saturation": f"the command is capped at {_fmt(p.get('u_sat', 0))} {u('u_sat')} (thrust or "
-                      f"shaft-speed saturation)",
-        "nonlinear_restoring": f"the restoring {force} is not linear in the "
-                               f"{'angle' if rot else 'displacement'} "
-                               f"(cubic term c3 = {_fmt(p.get('c3', 0))} {u('c3')}, e.g. a sin-shaped "
-                               f"righting arm)",
-        "coupling": f"sway and yaw are coupled: Y_r = {_fmt(p.get('Y_r', 0))} {u('Y_r')}, "
-                    f"N_v = {_fmt(p.get('N_v', 0))} {u('N_v')}",
-    }[name]
-    return text

@@ -5,11 +5,13 @@ Each module of this package defines one subclass of ``base.CatalogueEffect`` dec
 (plus its tests). The catalogue's names (``catalogue.CATALOGUE``) stay the interface of reports
 and JSON.
 
-Migrated so far: the **maneuver** model family (multi-DOF output error, ``seafmu.identification
-.maneuver``): an effect's parameter names per DOF, their scales, its term in the simulator and
-its sentence in the diagnosis. The 1-2-DOF families (``static``, ``timeseries``, applicability,
-synthetic hiding) still use the catalogue's name switches; docs/architecture.md, "Identification:
-where changes go", has the plan.
+Owned by the objects so far: for every effect, when it applies to a 1-2-DOF trial (``applies``)
+and the finding in words (``evidence``); for the **maneuver** model family (multi-DOF output
+error, ``seafmu.identification.maneuver``), the parameter names per DOF, "absent" value, scales,
+simulator term and sentence. Still name switches elsewhere: the parameters' bounds, units and
+start grids and the force/thrust terms of the ``static`` and ``timeseries`` models, and the hiding
+in ``synthetic``/``plant_trials``; docs/architecture.md, "Identification: where changes go", has
+the plan.
 """
 
 from __future__ import annotations

@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
-from typing import ClassVar
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from seafmu.identification.trial import Trial
 
 REGISTRY: dict[str, CatalogueEffect] = {}
 
@@ -19,6 +22,10 @@ def register(cls: type[CatalogueEffect]) -> type[CatalogueEffect]:
 
 class CatalogueEffect:
     """One catalogue effect. A model family the effect extends is a group of methods below.
+
+    Every effect (1-2-DOF trials): ``applies(trial)`` — None where the effect can be observed,
+    else the reason it cannot (maneuver and sway_yaw trials are decided by ``catalogue``) — and
+    ``evidence(params, trial)``, the finding in a naval architect's words.
 
     Maneuver model (``seafmu.identification.maneuver``, output error on the whole log): set
     ``maneuver = True`` and give
@@ -36,6 +43,12 @@ class CatalogueEffect:
     absent: ClassVar[float] = 0.0
     maneuver: ClassVar[bool] = False
 
+    def applies(self, trial: Trial) -> str | None:
+        raise NotImplementedError(f"effect '{self.name}': applies() not written")
+
+    def evidence(self, params: dict[str, float], trial: Trial) -> str:
+        raise NotImplementedError(f"effect '{self.name}': evidence() not written")
+
     def maneuver_params(self, d: int) -> list[str]:
         raise NotImplementedError(f"effect '{self.name}' has no maneuver-level extension")
 
@@ -52,3 +65,54 @@ class CatalogueEffect:
 def fmt(x: float) -> str:
     """A number in a finding's sentence."""
     return f"{x:.4g}"
+
+
+# -- what a trial is (the questions applies() asks) ----------------------------------------------
+
+def static_force_speed(trial: Trial) -> bool:
+    return trial.kind == "static" and trial.table == "force_speed"
+
+
+def static_thrust(trial: Trial) -> bool:
+    return trial.kind == "static" and trial.table == "thrust_rpm"
+
+
+def rpm_step(trial: Trial) -> bool:
+    """A step trial commanded by shaft speed (not sway_yaw)."""
+    return trial.kind == "step" and trial.input_kind == "rpm" and trial.dof != "sway_yaw"
+
+
+def has_both_signs(trial: Trial) -> bool:
+    """Commands of both signs."""
+    us = [np.asarray(r.u, dtype=float).ravel() for r in trial.runs if r.u is not None]
+    u = np.concatenate(us) if us else np.zeros(0)
+    return bool(u.size and np.any(u > 0) and np.any(u < 0))
+
+
+def moves_both_ways(trial: Trial) -> bool:
+    """Speeds (table input or measured output) of both signs, each above 20 % of the largest."""
+    if trial.kind == "static":
+        v = np.concatenate([np.asarray(r.u, dtype=float).ravel() for r in trial.runs])
+    else:
+        v = np.concatenate([np.asarray(r.y, dtype=float).ravel() for r in trial.runs])
+    peak = float(np.max(np.abs(v))) if v.size else 0.0
+    return bool(peak > 0 and np.max(v) > 0.2 * peak and np.min(v) < -0.2 * peak)
+
+
+# -- words ------------------------------------------------------------------------------------------
+
+def words(trial: Trial) -> tuple[str, str, bool]:
+    """(the DOF as a word, "force" or "moment", rotational) for a finding's sentence."""
+    from seafmu.identification.trial import ROTATIONAL
+
+    rot = trial.dof in ROTATIONAL
+    what = {"surge": "surge", "sway": "sway", "heave": "heave", "roll": "roll", "pitch": "pitch",
+            "yaw": "yaw", "sway_yaw": "sway-yaw"}.get(trial.dof or "", "the")
+    return what, "moment" if rot else "force", rot
+
+
+def unit(param: str, trial: Trial) -> str:
+    """The unit of a parameter in this trial (``catalogue.param_unit``)."""
+    from seafmu.identification.catalogue import param_unit  # the catalogue imports this package
+
+    return param_unit(param, trial)

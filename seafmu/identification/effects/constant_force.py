@@ -2,15 +2,28 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
-from seafmu.identification.effects.base import CatalogueEffect, fmt, register
+from seafmu.identification.effects.base import CatalogueEffect, fmt, register, unit, words
+
+if TYPE_CHECKING:
+    from seafmu.identification.trial import Trial
 
 
 @register
 class ConstantForce(CatalogueEffect):
     name = "constant_force"
     maneuver = True
+
+    def applies(self, trial: Trial) -> str | None:
+        return None  # every kind (sway_yaw trials test the coupling only: catalogue.not_applicable)
+
+    def evidence(self, params: dict[str, float], trial: Trial) -> str:
+        _, force, _ = words(trial)
+        return (f"a steady external {force} of {fmt(params.get('F_0', 0))} {unit('F_0', trial)} acts "
+                f"(wind, tether pull, trim or a sensor offset)")
 
     def maneuver_params(self, d: int) -> list[str]:
         """One force per DOF: F_0[X], F_0[Y], ... (N or N m)."""

@@ -3,16 +3,43 @@
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from seafmu.identification.effects.base import CatalogueEffect, fmt, register
+from seafmu.identification.effects.base import (
+    CatalogueEffect,
+    fmt,
+    moves_both_ways,
+    register,
+    static_force_speed,
+    unit,
+)
+
+if TYPE_CHECKING:
+    from seafmu.identification.trial import Trial
 
 
 @register
 class Current(CatalogueEffect):
     name = "current"
     maneuver = True
+
+    def applies(self, trial: Trial) -> str | None:
+        if not (static_force_speed(trial) or trial.kind in ("decay", "step")):
+            return "a current shows in damping of a translating or turning hull, not here"
+        if trial.baseline == "linear":
+            return "with linear damping only, a current is the same model as a constant force"
+        if trial.mirror:
+            return "a mirrored table is antisymmetric by construction: no current can show"
+        if not moves_both_ways(trial):
+            return ("needs motion ahead and astern: in one direction a current looks like a constant "
+                    "force plus a change of linear damping")
+        return None
+
+    def evidence(self, params: dict[str, float], trial: Trial) -> str:
+        return (f"the hull moves through a current of {fmt(params.get('v_c', 0))} {unit('v_c', trial)}: the "
+                f"damping acts on the speed through the water, not the measured speed")
 
     def maneuver_params(self, d: int) -> list[str]:
         """The NED current (north, east), m/s."""

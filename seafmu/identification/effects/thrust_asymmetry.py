@@ -1,0 +1,31 @@
+"""Thrust asymmetry: reverse thrust efficiency differs from forward."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from seafmu.identification.effects.base import (
+    CatalogueEffect,
+    fmt,
+    has_both_signs,
+    register,
+    rpm_step,
+    static_thrust,
+)
+
+if TYPE_CHECKING:
+    from seafmu.identification.trial import Trial
+
+
+@register
+class ThrustAsymmetry(CatalogueEffect):
+    name = "thrust_asymmetry"
+
+    def applies(self, trial: Trial) -> str | None:
+        if not (static_thrust(trial) or rpm_step(trial)):
+            return "needs a shaft-speed input"
+        return None if has_both_signs(trial) else "all commands have one sign: reverse thrust unseen"
+
+    def evidence(self, params: dict[str, float], trial: Trial) -> str:
+        return (f"astern thrust is {fmt(100 * (1 + params.get('eta_rev', 0)))} % of ahead thrust at "
+                f"the same shaft speed")
