@@ -245,7 +245,7 @@ _EXTRACTED: dict[tuple[str, float], str] = {}
 # whole process, so messages are routed by the instance name the FMU passes, not by which unit
 # registered last. Each FmuUnit subscribes its list under its instance name.
 _LOG_ROUTES: dict[str, list[str]] = {}
-_CALLBACKS: Any = None
+_CALLBACKS: list[Any] = []  # every set handed to an FMU stays alive as long as the process
 
 
 def _route_log(env: Any, instance: bytes, status: int, category: bytes, message: bytes) -> None:
@@ -256,24 +256,32 @@ def _route_log(env: Any, instance: bytes, status: int, category: bytes, message:
 
 
 def _callbacks() -> Any:
-    global _CALLBACKS
-    if _CALLBACKS is None:
-        from fmpy.fmi2 import (
-            fmi2CallbackAllocateMemoryTYPE,
-            fmi2CallbackFreeMemoryTYPE,
-            fmi2CallbackFunctions,
-            fmi2CallbackLoggerTYPE,
-        )
-        from fmpy.logging import addLoggerProxy
+    """Callbacks for one instantiation, with the logger routed to ``_route_log``.
 
-        cb = fmi2CallbackFunctions()
-        cb.logger = fmi2CallbackLoggerTYPE(_route_log)
+    fmpy's native logger proxy (which formats the variadic message) keeps ONE Python logger for
+    the whole process, the last one registered: any other code in the process that registers its
+    own (a test, a user's script, fmpy's simulate_fmu) would take the FMUs' messages away from the
+    master. So every instantiation registers ours again, on a fresh struct (registering a struct
+    twice would make the proxy call itself); FMI requires the struct to outlive the instance.
+    """
+    from fmpy.fmi2 import (
+        fmi2CallbackAllocateMemoryTYPE,
+        fmi2CallbackFreeMemoryTYPE,
+        fmi2CallbackFunctions,
+        fmi2CallbackLoggerTYPE,
+    )
+    from fmpy.logging import addLoggerProxy
+
+    if not _CALLBACKS:
         libc = ctypes.CDLL(None)
-        cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(libc.calloc)
-        cb.freeMemory = fmi2CallbackFreeMemoryTYPE(libc.free)
-        addLoggerProxy(ctypes.byref(cb))
-        _CALLBACKS = cb
-    return _CALLBACKS
+        _CALLBACKS.append((fmi2CallbackLoggerTYPE(_route_log), fmi2CallbackAllocateMemoryTYPE(libc.calloc),
+                           fmi2CallbackFreeMemoryTYPE(libc.free)))
+    logger, alloc, free = _CALLBACKS[0]
+    cb = fmi2CallbackFunctions()
+    cb.logger, cb.allocateMemory, cb.freeMemory = logger, alloc, free
+    addLoggerProxy(ctypes.byref(cb))
+    _CALLBACKS.append(cb)
+    return cb
 
 
 # The unpacked FMUs of this process live under one folder, seafmu_fmu_<random>/ in the temp
