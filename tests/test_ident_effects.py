@@ -94,3 +94,17 @@ def test_applicability_and_words_come_from_the_objects() -> None:
         "needs a 2nd-order decay with a linear restoring baseline")
     text = catalogue.evidence("deadband", {"n_0": 0.25}, trial, 0.5, 0.25, -12.0)
     assert text.startswith("The thruster gives no thrust below 0.25 rev/s (deadband)")
+
+
+def test_bounds_and_absent_values_are_the_effects_own() -> None:
+    from seafmu.identification import static, timeseries
+    from seafmu.identification.synthetic import demo_trial
+
+    assert timeseries.BOUNDS["T_lag"] == (0.0, np.inf) and timeseries.BOUNDS["u_sat"] == (1e-6, np.inf)
+    assert static._BOUNDS["eta_rev"] == (-0.99, 10.0) and "T_lag" not in static._BOUNDS
+    trial = demo_trial("saturation", seed=0)
+    sat = effects.get("saturation")
+    assert not sat.start_at_absent
+    cap = catalogue.input_scale(trial)
+    assert catalogue.null_value("u_sat", trial) == sat.absent_values(trial)["u_sat"] == cap
+    assert catalogue.null_value("F_0[X]", trial) == catalogue.null_value("v_c_north", trial) == 0.0

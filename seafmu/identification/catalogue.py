@@ -99,7 +99,8 @@ def effect_params(name: str, names: list[str]) -> list[str]:
 
 def null_value(param: str, trial: Trial) -> float:
     """Value of an effect parameter at which the effect vanishes (significance is tested against it)."""
-    return input_scale(trial) if param == "u_sat" else 0.0
+    obj = effects.owner(param)
+    return obj.absent_values(trial).get(param, obj.absent) if obj is not None else 0.0
 
 
 # -- units and words ------------------------------------------------------------------------------

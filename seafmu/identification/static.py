@@ -12,7 +12,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from seafmu.identification.catalogue import CATALOGUE, input_scale
+from seafmu.identification import effects
+from seafmu.identification.catalogue import CATALOGUE
 from seafmu.identification.fitting import (
     FitResult,
     aic_bic,
@@ -24,7 +25,7 @@ from seafmu.identification.fitting import (
 from seafmu.identification.trial import Trial, TrialError
 
 _NONLINEAR = {"v_c", "n_0", "u_sat", "eta_rev"}
-_BOUNDS = {"f_c": (0.0, np.inf), "n_0": (0.0, np.inf), "u_sat": (1e-9, np.inf), "eta_rev": (-0.99, 10.0)}
+_BOUNDS = effects.bounds("static")  # each effect's own (effects/<name>.py)
 
 
 @dataclass
@@ -99,8 +100,9 @@ def baseline_model(trial: Trial) -> StaticModel:
 def extend(model: StaticModel, effect: str, trial: Trial) -> StaticModel:
     params = CATALOGUE[effect].params
     m = StaticModel(model.table, model.law, [*model.free, *params], dict(model.values), effect)
-    if effect == "saturation":
-        m.values["u_sat"] = input_scale(trial)
+    obj = effects.get(effect)
+    if obj is not None and not obj.start_at_absent:  # e.g. a saturation cap: set, but inactive
+        m.values.update(obj.absent_values(trial))
     return m
 
 

@@ -20,7 +20,8 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.signal import lfilter, savgol_filter
 
-from seafmu.identification.catalogue import CATALOGUE, input_scale
+from seafmu.identification import effects
+from seafmu.identification.catalogue import CATALOGUE
 from seafmu.identification.fitting import (
     FitResult,
     aic_bic,
@@ -43,8 +44,7 @@ DEFAULTS: dict[str, dict[str, float]] = {
     "pendulum": {"alpha": 0.0, "beta": 0.0, "gamma": 0.0, "f_c": 0.0, "F_0": 0.0, "eps": 0.0},
     "sway_yaw": {"m22": 1.0, "m26": 0.0, "m66": 1.0, "Y_v": 0.0, "Y_r": 0.0, "N_v": 0.0, "N_r": 0.0},
 }
-BOUNDS = {"f_c": (0.0, math.inf), "n_0": (0.0, math.inf), "u_sat": (1e-6, math.inf), "T_lag": (0.0, math.inf),
-          "t_d": (0.0, math.inf), "eta_rev": (-0.95, 10.0)}
+BOUNDS = effects.bounds("timeseries")  # each effect's own (effects/<name>.py)
 IC_NAMES = {"first": ("x0",), "second": ("x0", "xd0"), "pendulum": ("x0", "xd0"), "sway_yaw": ("v0", "r0")}
 
 
@@ -829,13 +829,14 @@ def fit_effect(trial: Trial, base: FitResult, effect: str, sp: Split | None = No
     sp = sp or base.extras["split"]
     vals = dict(base.extras["values"])
     ics = base.extras["initial_states"]
-    if effect == "saturation":
-        vals["u_sat"] = input_scale(trial)
+    obj = effects.get(effect)
+    assert obj is not None, effect
+    null = obj.absent_values(trial)
+    if not obj.start_at_absent:  # e.g. the cap of saturation: no gradient where it is inactive
+        vals.update(null)
     grid = effect_grid(effect, model, vals, sp.fit)
-    null = {q: (input_scale(trial) if q == "u_sat" else 0.0) for q in CATALOGUE[effect].params}
     best, best_cost = None, math.inf
-    # The cap of saturation has no gradient where it is inactive: never start it there.
-    starts = grid if effect == "saturation" else [*grid, null]
+    starts = [*grid, null] if obj.start_at_absent else grid
     for g in starts:
         trial_vals = {**vals, **g}
         cost = 0.0
@@ -846,7 +847,7 @@ def fit_effect(trial: Trial, base: FitResult, effect: str, sp: Split | None = No
         if np.isfinite(cost) and cost < best_cost:
             best, best_cost = g, cost
     fit = fit_timeseries(trial, model, start={**vals, **(best or null)}, start_ics=list(ics), sp=sp)
-    if fit.extras["rss"] > base.extras["rss"] * (1 + 1e-6) and best is not null and effect != "saturation":
+    if fit.extras["rss"] > base.extras["rss"] * (1 + 1e-6) and best is not null and obj.start_at_absent:
         # The extension contains the baseline, so it must fit at least as well: a local minimum.
         # Restart from the baseline itself (effect absent) and keep the better of the two.
         again = fit_timeseries(trial, model, start={**vals, **null}, start_ics=list(ics), sp=sp)

@@ -1,17 +1,18 @@
 """Catalogue effects as objects: one class per effect, one file per class, found by name.
 
 Each module of this package defines one subclass of ``base.CatalogueEffect`` decorated with
-``@register``; the package imports every module on first use, so adding an effect is one file
-(plus its tests). The catalogue's names (``catalogue.CATALOGUE``) stay the interface of reports
-and JSON.
+``@register``; the package imports every module on first use, so an effect's behaviour is its
+file (plus its tests) and its name one line in ``catalogue.CATALOGUE``, the ordered list of names
+that reports and JSON use.
 
-Owned by the objects so far: for every effect, when it applies to a 1-2-DOF trial (``applies``)
-and the finding in words (``evidence``); for the **maneuver** model family (multi-DOF output
-error, ``seafmu.identification.maneuver``), the parameter names per DOF, "absent" value, scales,
-simulator term and sentence. Still name switches elsewhere: the parameters' bounds, units and
-start grids and the force/thrust terms of the ``static`` and ``timeseries`` models, and the hiding
-in ``synthetic``/``plant_trials``; docs/architecture.md, "Identification: where changes go", has
-the plan.
+Owned by the objects so far: for every effect, when it applies to a 1-2-DOF trial
+(``applies``), the finding in words (``evidence``), the "absent" values and the parameters'
+bounds; for the **maneuver** model family (multi-DOF output error,
+``seafmu.identification.maneuver``), the parameter names per DOF, scales, simulator term and
+sentence. Still name switches elsewhere: the parameters' units and start grids and the
+force/thrust terms of the ``static`` and ``timeseries`` models, and the hiding in
+``synthetic``/``plant_trials``; docs/architecture.md, "Identification: where changes go", has the
+plan.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ import pkgutil
 
 from seafmu.identification.effects.base import REGISTRY, CatalogueEffect, register
 
-__all__ = ["REGISTRY", "CatalogueEffect", "get", "maneuver_effects", "register"]
+__all__ = ["REGISTRY", "CatalogueEffect", "bounds", "get", "maneuver_effects", "owner", "register"]
 
 _loaded = False
 
@@ -47,3 +48,23 @@ def maneuver_effects(order: tuple[str, ...]) -> tuple[str, ...]:
     """The effects with a maneuver-level extension, in the given (catalogue) order."""
     _load()
     return tuple(n for n in order if n in REGISTRY and REGISTRY[n].maneuver)
+
+
+def owner(param: str) -> CatalogueEffect | None:
+    """The effect whose parameter ``param`` is (catalogue names, or a maneuver fit's per-DOF names)."""
+    from seafmu.identification.catalogue import CATALOGUE, effect_params
+
+    _load()
+    for name, obj in REGISTRY.items():
+        if name in CATALOGUE and effect_params(name, [param]):
+            return obj
+    return None
+
+
+def bounds(family: str) -> dict[str, tuple[float, float]]:
+    """Parameter bounds of every effect in one model family's fits ("static" or "timeseries")."""
+    _load()
+    out: dict[str, tuple[float, float]] = {}
+    for obj in REGISTRY.values():
+        out.update(obj.static_bounds if family == "static" else obj.timeseries_bounds)
+    return out

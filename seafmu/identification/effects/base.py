@@ -23,7 +23,8 @@ def register(cls: type[CatalogueEffect]) -> type[CatalogueEffect]:
 class CatalogueEffect:
     """One catalogue effect. A model family the effect extends is a group of methods below.
 
-    Every effect (1-2-DOF trials): ``applies(trial)`` — None where the effect can be observed,
+    Every effect (1-2-DOF trials): ``absent_values(trial)``, ``static_bounds`` and
+    ``timeseries_bounds`` (its parameters), ``applies(trial)`` — None where the effect can be observed,
     else the reason it cannot (maneuver and sway_yaw trials are decided by ``catalogue``) — and
     ``evidence(params, trial)``, the finding in a naval architect's words.
 
@@ -42,6 +43,19 @@ class CatalogueEffect:
     name: ClassVar[str]
     absent: ClassVar[float] = 0.0
     maneuver: ClassVar[bool] = False
+    # Bounds of the effect's parameters in the fits of the 1-2-DOF families (unbounded if absent).
+    static_bounds: ClassVar[dict[str, tuple[float, float]]] = {}
+    timeseries_bounds: ClassVar[dict[str, tuple[float, float]]] = {}
+    # False when the fit must not start at the "absent" value (no gradient there: a cap that is
+    # never reached); the extension then starts with the effect absent but from its start grid only.
+    start_at_absent: ClassVar[bool] = True
+
+    def absent_values(self, trial: Trial) -> dict[str, float]:
+        """The parameter values at which the effect vanishes (its significance is tested against
+        them; the extended fit may start there)."""
+        from seafmu.identification.catalogue import CATALOGUE  # the catalogue imports this package
+
+        return dict.fromkeys(CATALOGUE[self.name].params, self.absent)
 
     def applies(self, trial: Trial) -> str | None:
         raise NotImplementedError(f"effect '{self.name}': applies() not written")

@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+import math
+from typing import TYPE_CHECKING, ClassVar
 
 from seafmu.identification.effects.base import CatalogueEffect, fmt, register, static_force_speed, unit, words
 
@@ -13,6 +14,8 @@ if TYPE_CHECKING:
 @register
 class CoulombFriction(CatalogueEffect):
     name = "coulomb_friction"
+    static_bounds: ClassVar[dict[str, tuple[float, float]]] = {"f_c": (0.0, math.inf)}
+    timeseries_bounds: ClassVar[dict[str, tuple[float, float]]] = {"f_c": (0.0, math.inf)}
 
     def applies(self, trial: Trial) -> str | None:
         ok = static_force_speed(trial) or trial.kind in ("decay", "step", "decay2", "pendulum")

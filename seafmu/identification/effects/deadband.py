@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+import math
+from typing import TYPE_CHECKING, ClassVar
 
 from seafmu.identification.effects.base import CatalogueEffect, fmt, register, rpm_step, static_thrust, unit
 
@@ -13,6 +14,8 @@ if TYPE_CHECKING:
 @register
 class Deadband(CatalogueEffect):
     name = "deadband"
+    static_bounds: ClassVar[dict[str, tuple[float, float]]] = {"n_0": (0.0, math.inf)}
+    timeseries_bounds: ClassVar[dict[str, tuple[float, float]]] = {"n_0": (0.0, math.inf)}
 
     def applies(self, trial: Trial) -> str | None:
         return None if (static_thrust(trial) or rpm_step(trial)) else "needs a shaft-speed input"

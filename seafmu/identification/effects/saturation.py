@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+import math
+from typing import TYPE_CHECKING, ClassVar
 
 from seafmu.identification.effects.base import CatalogueEffect, fmt, register, static_thrust, unit
 
@@ -13,6 +14,15 @@ if TYPE_CHECKING:
 @register
 class Saturation(CatalogueEffect):
     name = "saturation"
+    static_bounds: ClassVar[dict[str, tuple[float, float]]] = {"u_sat": (1e-9, math.inf)}
+    timeseries_bounds: ClassVar[dict[str, tuple[float, float]]] = {"u_sat": (1e-6, math.inf)}
+    start_at_absent = False  # the cap has no gradient where it is inactive
+
+    def absent_values(self, trial: Trial) -> dict[str, float]:
+        """The cap at the largest command: inactive."""
+        from seafmu.identification.catalogue import input_scale
+
+        return {"u_sat": input_scale(trial)}
 
     def applies(self, trial: Trial) -> str | None:
         return None if (static_thrust(trial) or trial.kind == "step") else "needs a commanded input"

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, ClassVar
 
 from seafmu.identification.effects.base import (
     CatalogueEffect,
@@ -20,6 +20,8 @@ if TYPE_CHECKING:
 @register
 class ThrustAsymmetry(CatalogueEffect):
     name = "thrust_asymmetry"
+    static_bounds: ClassVar[dict[str, tuple[float, float]]] = {"eta_rev": (-0.99, 10.0)}
+    timeseries_bounds: ClassVar[dict[str, tuple[float, float]]] = {"eta_rev": (-0.95, 10.0)}
 
     def applies(self, trial: Trial) -> str | None:
         if not (static_thrust(trial) or rpm_step(trial)):

@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+import math
+from typing import TYPE_CHECKING, ClassVar
 
 from seafmu.identification.effects.base import CatalogueEffect, fmt, register
 
@@ -13,6 +14,7 @@ if TYPE_CHECKING:
 @register
 class TimeDelay(CatalogueEffect):
     name = "time_delay"
+    timeseries_bounds: ClassVar[dict[str, tuple[float, float]]] = {"t_d": (0.0, math.inf)}
 
     def applies(self, trial: Trial) -> str | None:
         return None if trial.kind == "step" else "needs a commanded input over time (step trial)"
