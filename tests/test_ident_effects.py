@@ -108,3 +108,13 @@ def test_bounds_and_absent_values_are_the_effects_own() -> None:
     cap = catalogue.input_scale(trial)
     assert catalogue.null_value("u_sat", trial) == sat.absent_values(trial)["u_sat"] == cap
     assert catalogue.null_value("F_0[X]", trial) == catalogue.null_value("v_c_north", trial) == 0.0
+
+
+def test_start_grids_are_the_effects_own() -> None:
+    from seafmu.identification import static
+
+    assert static._NONLINEAR == {"v_c", "n_0", "u_sat", "eta_rev"}
+    assert effects.static_grids(2.0)["n_0"] == [0.1, 0.4]
+    s = {"V": 2.0, "U": 3.0, "F": 10.0, "M": 5.0, "Tv": 4.0, "h": 0.1, "dur": 30.0}
+    grid = effects.get("time_delay").timeseries_start_grid(s, {}, None, [])
+    assert [g["t_d"] for g in grid] == [0.05, 0.1, 0.2, 0.4, 0.8]

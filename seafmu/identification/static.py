@@ -24,7 +24,8 @@ from seafmu.identification.fitting import (
 )
 from seafmu.identification.trial import Trial, TrialError
 
-_NONLINEAR = {"v_c", "n_0", "u_sat", "eta_rev"}
+# The parameters the table models are nonlinear in: those whose effect gives a start grid.
+_NONLINEAR = set(effects.static_grids(1.0))
 _BOUNDS = effects.bounds("static")  # each effect's own (effects/<name>.py)
 
 
@@ -136,8 +137,7 @@ def _starts(model: StaticModel, x: np.ndarray, y: np.ndarray) -> list[np.ndarray
     lin = [p for p in model.free if p not in _NONLINEAR]
     nl = [p for p in model.free if p in _NONLINEAR]
     xmax = float(np.max(np.abs(x))) or 1.0
-    grids = {"v_c": [-0.2 * xmax, -0.05 * xmax, 0.05 * xmax, 0.2 * xmax], "n_0": [0.05 * xmax, 0.2 * xmax],
-             "u_sat": [0.5 * xmax, 0.8 * xmax], "eta_rev": [-0.3, 0.3]}
+    grids = effects.static_grids(xmax)  # each effect's own (effects/<name>.py)
     out = []
     combos: list[dict[str, float]] = [{}]
     for p in nl:

@@ -572,26 +572,9 @@ def _scales(model: TSModel, vals: dict[str, float], preps: list[_Prep]) -> dict[
 def effect_grid(effect: str, model: TSModel, vals: dict[str, float],
                 preps: list[_Prep]) -> list[dict[str, float]]:
     """Start values to try for an effect's parameter(s), from the scales of the data."""
-    s = _scales(model, vals, preps)
-    V, U, F, M, Tv, h = s["V"], s["U"], s["F"], s["M"], s["Tv"], s["h"]
-    g: dict[str, list[float]] = {
-        "d_L": [0.1 * F / V, 0.5 * F / V], "d_Q": [0.1 * F / V**2, 0.5 * F / V**2],
-        "f_c": [0.03 * F, 0.1 * F, 0.3 * F], "v_c": [-0.3 * V, -0.1 * V, 0.1 * V, 0.3 * V],
-        "F_0": [-0.2 * F, -0.05 * F, 0.05 * F, 0.2 * F], "m_a": [-0.3 * M, 0.3 * M, M, 2 * M],
-        "k_q": [-0.5 * vals.get("k", 1.0) / U, 0.3 * vals.get("k", 1.0) / U, vals.get("k", 1.0) / U],
-        "eta_rev": [-0.4, -0.15, 0.15, 0.4], "n_0": [0.05 * U, 0.15 * U, 0.3 * U],
-        "u_sat": [0.5 * U, 0.7 * U, 0.9 * U],
-        "T_lag": sorted({max(0.5 * h, x * Tv) for x in (0.05, 0.15, 0.4)}),
-        "t_d": [x * h for x in (0.5, 1.0, 2.0, 4.0, 8.0) if x * h < 0.1 * s["dur"]] or [0.5 * h],
-        "c3": [x * abs(vals.get("c", 1.0)) / V**2 for x in (-0.3, -0.1, 0.1, 0.3)],
-    }
-    if effect == "coupling":
-        est = equation_error(extend(model.copy(values=vals), "coupling"), preps)
-        return [{"Y_r": est.get("Y_r", 0.0), "N_v": est.get("N_v", 0.0)}, {"Y_r": 0.0, "N_v": 0.0}]
-    (p,) = CATALOGUE[effect].params
-    if model.family == "pendulum" and p in ("f_c", "F_0"):
-        return [{p: x * s["F"]} for x in ((0.01, 0.03, 0.1) if p == "f_c" else (-0.05, 0.05))]
-    return [{p: x} for x in g[p]]
+    obj = effects.get(effect)
+    assert obj is not None, effect
+    return obj.timeseries_start_grid(_scales(model, vals, preps), vals, model, preps)
 
 
 # -- fitting ----------------------------------------------------------------------------------------

@@ -6,13 +6,12 @@ file (plus its tests) and its name one line in ``catalogue.CATALOGUE``, the orde
 that reports and JSON use.
 
 Owned by the objects so far: for every effect, when it applies to a 1-2-DOF trial
-(``applies``), the finding in words (``evidence``), the "absent" values and the parameters'
-bounds; for the **maneuver** model family (multi-DOF output error,
+(``applies``), the finding in words (``evidence``), the "absent" values, the parameters' bounds
+and start grids; for the **maneuver** model family (multi-DOF output error,
 ``seafmu.identification.maneuver``), the parameter names per DOF, scales, simulator term and
-sentence. Still name switches elsewhere: the parameters' units and start grids and the
-force/thrust terms of the ``static`` and ``timeseries`` models, and the hiding in
-``synthetic``/``plant_trials``; docs/architecture.md, "Identification: where changes go", has the
-plan.
+sentence. Still name switches elsewhere: the parameters' units, the force/thrust terms of the
+``static`` and ``timeseries`` models, and the hiding in ``synthetic``/``plant_trials``;
+docs/architecture.md, "Identification: where changes go", has the plan.
 """
 
 from __future__ import annotations
@@ -22,7 +21,8 @@ import pkgutil
 
 from seafmu.identification.effects.base import REGISTRY, CatalogueEffect, register
 
-__all__ = ["REGISTRY", "CatalogueEffect", "bounds", "get", "maneuver_effects", "owner", "register"]
+__all__ = ["REGISTRY", "CatalogueEffect", "bounds", "get", "maneuver_effects", "owner", "register",
+           "static_grids"]
 
 _loaded = False
 
@@ -67,4 +67,13 @@ def bounds(family: str) -> dict[str, tuple[float, float]]:
     out: dict[str, tuple[float, float]] = {}
     for obj in REGISTRY.values():
         out.update(obj.static_bounds if family == "static" else obj.timeseries_bounds)
+    return out
+
+
+def static_grids(xmax: float) -> dict[str, list[float]]:
+    """Start grids of every parameter a static table model is nonlinear in (largest |input| xmax)."""
+    _load()
+    out: dict[str, list[float]] = {}
+    for obj in REGISTRY.values():
+        out.update(obj.static_start_grid(xmax))
     return out

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from seafmu.identification.effects.base import CatalogueEffect, fmt, register, unit
 
@@ -13,6 +13,11 @@ if TYPE_CHECKING:
 @register
 class AddedMass(CatalogueEffect):
     name = "added_mass"
+
+    def timeseries_start_grid(self, s: dict[str, float], vals: dict[str, float], model: Any,
+                              preps: list[Any]) -> list[dict[str, float]]:
+        M = s["M"]
+        return [{"m_a": x} for x in [-0.3 * M, 0.3 * M, M, 2 * M]]
 
     def applies(self, trial: Trial) -> str | None:
         k = trial.kind

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
@@ -56,6 +56,17 @@ class CatalogueEffect:
         from seafmu.identification.catalogue import CATALOGUE  # the catalogue imports this package
 
         return dict.fromkeys(CATALOGUE[self.name].params, self.absent)
+
+    def timeseries_start_grid(self, s: dict[str, float], vals: dict[str, float], model: Any,
+                              preps: list[Any]) -> list[dict[str, float]]:
+        """Start values to try in a time-series fit, from the data's scales ``s`` (V speed, U
+        command, F force, M inertia, Tv time constant, h sample step, dur record length), the
+        baseline's values, the model (``timeseries.TSModel``) and the prepared runs."""
+        raise NotImplementedError(f"effect '{self.name}' has no time-series start grid")
+
+    def static_start_grid(self, xmax: float) -> dict[str, list[float]]:
+        """Start values of the parameters a static table is nonlinear in (none: solved linearly)."""
+        return {}
 
     def applies(self, trial: Trial) -> str | None:
         raise NotImplementedError(f"effect '{self.name}': applies() not written")

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -16,6 +16,13 @@ if TYPE_CHECKING:
 class ConstantForce(CatalogueEffect):
     name = "constant_force"
     maneuver = True
+
+    def timeseries_start_grid(self, s: dict[str, float], vals: dict[str, float], model: Any,
+                              preps: list[Any]) -> list[dict[str, float]]:
+        if model.family == "pendulum":
+            return [{"F_0": x * s["F"]} for x in (-0.05, 0.05)]
+        F = s["F"]
+        return [{"F_0": x} for x in [-0.2 * F, -0.05 * F, 0.05 * F, 0.2 * F]]
 
     def applies(self, trial: Trial) -> str | None:
         return None  # every kind (sway_yaw trials test the coupling only: catalogue.not_applicable)

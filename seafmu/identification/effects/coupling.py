@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from seafmu.identification.effects.base import CatalogueEffect, fmt, register, unit
 
@@ -13,6 +13,13 @@ if TYPE_CHECKING:
 @register
 class Coupling(CatalogueEffect):
     name = "coupling"
+
+    def timeseries_start_grid(self, s: dict[str, float], vals: dict[str, float], model: Any,
+                              preps: list[Any]) -> list[dict[str, float]]:
+        from seafmu.identification.timeseries import equation_error, extend  # imports the catalogue
+
+        est = equation_error(extend(model.copy(values=vals), "coupling"), preps)
+        return [{"Y_r": est.get("Y_r", 0.0), "N_v": est.get("N_v", 0.0)}, {"Y_r": 0.0, "N_v": 0.0}]
 
     def applies(self, trial: Trial) -> str | None:
         # a sway_yaw trial tests the coupling only (decided in catalogue.not_applicable)

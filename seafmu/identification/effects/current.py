@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -24,6 +24,14 @@ if TYPE_CHECKING:
 class Current(CatalogueEffect):
     name = "current"
     maneuver = True
+
+    def timeseries_start_grid(self, s: dict[str, float], vals: dict[str, float], model: Any,
+                              preps: list[Any]) -> list[dict[str, float]]:
+        V = s["V"]
+        return [{"v_c": x} for x in [-0.3 * V, -0.1 * V, 0.1 * V, 0.3 * V]]
+
+    def static_start_grid(self, xmax: float) -> dict[str, list[float]]:
+        return {"v_c": [-0.2 * xmax, -0.05 * xmax, 0.05 * xmax, 0.2 * xmax]}
 
     def applies(self, trial: Trial) -> str | None:
         if not (static_force_speed(trial) or trial.kind in ("decay", "step")):

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from seafmu.identification.effects.base import CatalogueEffect, fmt, register, unit, words
 
@@ -13,6 +13,11 @@ if TYPE_CHECKING:
 @register
 class NonlinearRestoring(CatalogueEffect):
     name = "nonlinear_restoring"
+
+    def timeseries_start_grid(self, s: dict[str, float], vals: dict[str, float], model: Any,
+                              preps: list[Any]) -> list[dict[str, float]]:
+        V = s["V"]
+        return [{"c3": x} for x in [x * abs(vals.get("c", 1.0)) / V**2 for x in (-0.3, -0.1, 0.1, 0.3)]]
 
     def applies(self, trial: Trial) -> str | None:
         if trial.kind == "decay2" and trial.restoring == "linear":

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from seafmu.identification.effects.base import CatalogueEffect, fmt, register, static_force_speed, unit, words
 
@@ -13,6 +13,11 @@ if TYPE_CHECKING:
 @register
 class QuadraticDamping(CatalogueEffect):
     name = "quadratic_damping"
+
+    def timeseries_start_grid(self, s: dict[str, float], vals: dict[str, float], model: Any,
+                              preps: list[Any]) -> list[dict[str, float]]:
+        F, V = s["F"], s["V"]
+        return [{"d_Q": x} for x in [0.1 * F / V**2, 0.5 * F / V**2]]
 
     def applies(self, trial: Trial) -> str | None:
         k = trial.kind

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 from seafmu.identification.effects.base import CatalogueEffect, fmt, register, static_thrust, unit
 
@@ -23,6 +23,14 @@ class Saturation(CatalogueEffect):
         from seafmu.identification.catalogue import input_scale
 
         return {"u_sat": input_scale(trial)}
+
+    def timeseries_start_grid(self, s: dict[str, float], vals: dict[str, float], model: Any,
+                              preps: list[Any]) -> list[dict[str, float]]:
+        U = s["U"]
+        return [{"u_sat": x} for x in [0.5 * U, 0.7 * U, 0.9 * U]]
+
+    def static_start_grid(self, xmax: float) -> dict[str, list[float]]:
+        return {"u_sat": [0.5 * xmax, 0.8 * xmax]}
 
     def applies(self, trial: Trial) -> str | None:
         return None if (static_thrust(trial) or trial.kind == "step") else "needs a commanded input"

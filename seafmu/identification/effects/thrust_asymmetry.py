@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 from seafmu.identification.effects.base import (
     CatalogueEffect,
@@ -22,6 +22,13 @@ class ThrustAsymmetry(CatalogueEffect):
     name = "thrust_asymmetry"
     static_bounds: ClassVar[dict[str, tuple[float, float]]] = {"eta_rev": (-0.99, 10.0)}
     timeseries_bounds: ClassVar[dict[str, tuple[float, float]]] = {"eta_rev": (-0.95, 10.0)}
+
+    def timeseries_start_grid(self, s: dict[str, float], vals: dict[str, float], model: Any,
+                              preps: list[Any]) -> list[dict[str, float]]:
+        return [{"eta_rev": x} for x in [-0.4, -0.15, 0.15, 0.4]]
+
+    def static_start_grid(self, xmax: float) -> dict[str, list[float]]:
+        return {"eta_rev": [-0.3, 0.3]}
 
     def applies(self, trial: Trial) -> str | None:
         if not (static_thrust(trial) or rpm_step(trial)):

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from seafmu.identification.effects.base import CatalogueEffect, fmt, register, rpm_step, static_thrust, unit
 
@@ -13,6 +13,12 @@ if TYPE_CHECKING:
 @register
 class ThrustQuadratic(CatalogueEffect):
     name = "thrust_quadratic"
+
+    def timeseries_start_grid(self, s: dict[str, float], vals: dict[str, float], model: Any,
+                              preps: list[Any]) -> list[dict[str, float]]:
+        U = s["U"]
+        return [{"k_q": x} for x in [-0.5 * vals.get("k", 1.0) / U, 0.3 * vals.get("k", 1.0) / U,
+                                     vals.get("k", 1.0) / U]]
 
     def applies(self, trial: Trial) -> str | None:
         thr = static_thrust(trial)

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 from seafmu.identification.effects.base import CatalogueEffect, fmt, register
 
@@ -15,6 +15,12 @@ if TYPE_CHECKING:
 class TimeDelay(CatalogueEffect):
     name = "time_delay"
     timeseries_bounds: ClassVar[dict[str, tuple[float, float]]] = {"t_d": (0.0, math.inf)}
+
+    def timeseries_start_grid(self, s: dict[str, float], vals: dict[str, float], model: Any,
+                              preps: list[Any]) -> list[dict[str, float]]:
+        h = s["h"]
+        return [{"t_d": x} for x in [x * h for x in (0.5, 1.0, 2.0, 4.0, 8.0) if x * h < 0.1 * s["dur"]]
+                or [0.5 * h]]
 
     def applies(self, trial: Trial) -> str | None:
         return None if trial.kind == "step" else "needs a commanded input over time (step trial)"
