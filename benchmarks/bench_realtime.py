@@ -70,7 +70,7 @@ def main() -> None:
         with tempfile.TemporaryDirectory() as tmp:
             hil = load_scenario(_hil_scenario(Path(tmp), args.duration))
             proc = subprocess.Popen(
-                [sys.executable, "-m", "seafmu.hardware.emulator", "minerva2",
+                [sys.executable, "-m", "seafmu.emulate", "minerva2",
                  "--serial", f"pty:{profile.serial.url}", "--can", f"slcan:pty:{profile.can.channel}",
                  "--scenario", "minerva2_dp"],
                 cwd=REPO, stdout=subprocess.PIPE, text=True,

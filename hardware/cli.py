@@ -1,25 +1,25 @@
-"""The ``seafmu emulate`` subcommand; seafmu's CLI adds it with ``hardware.cli.register(sub)``."""
+"""The ``seafmu emulate`` subcommand; seafmu's CLI adds it with ``hardware.cli.register(sub, ...)``.
+
+The layer that reads scenarios (``seafmu/``) passes ``scenario_params`` (scenario name -> plant
+parameters), which enables ``--scenario``; this layer never imports it.
+"""
 
 from __future__ import annotations
 
 import argparse
 
-
-def _cmd_emulate(args: argparse.Namespace) -> int:
-    from .emulator import run_args
-
-    return run_args(args)
+from .emulator import PlantParameters
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
+def register(subparsers: argparse._SubParsersAction, scenario_params: PlantParameters | None = None) -> None:
     """Add ``emulate VESSEL --serial PORT --can INTERFACE:CHANNEL`` to seafmu's subcommands."""
     from .emulator import __doc__ as doc
-    from .emulator import build_parser
+    from .emulator import build_parser, run_args
 
     p = subparsers.add_parser(
         "emulate",
         help="run a vessel model in real time behind NMEA 0183 serial and CAN",
         description=(doc or "").split("\n\n", 1)[0],
     )
-    build_parser(p)
-    p.set_defaults(fn=_cmd_emulate)
+    build_parser(p, scenarios=scenario_params is not None)
+    p.set_defaults(fn=lambda args: run_args(args, scenario_params))

@@ -233,22 +233,27 @@ def _port(spec: str, bridges: list[NullModem]) -> tuple[str, str]:
     return spec, spec
 
 
-def _plant_params(scenario: str | None, sets: list[str]) -> dict[str, Any]:
+PlantParameters = Callable[[str], dict[str, Any]]
+"""Plant parameters by scenario name: given by the layer that reads scenarios (``seafmu.emulate``)."""
+
+
+def _plant_params(scenario: str | None, sets: list[str], scenario_params: PlantParameters | None = None
+                  ) -> dict[str, Any]:
     params: dict[str, Any] = {}
     if scenario:
-        from seafmu.scenario import load_scenario
-
-        sc = load_scenario(scenario)
-        plant = next((i for i in sc.instances if i.kind == "plant"), None)
-        if plant is not None:
-            params.update({k: v for k, v in plant.parameters.items() if k != "vessel_file"})
+        if scenario_params is None:
+            raise ValueError("--scenario needs seafmu's scenario reader: use `seafmu emulate` "
+                             "or `python -m seafmu.emulate`")
+        params.update(scenario_params(scenario))
     for item in sets:
         key, _, value = item.partition("=")
         params[key.strip()] = float(value)
     return params
 
 
-def build_parser(p: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
+def build_parser(p: argparse.ArgumentParser | None = None,
+                 scenarios: bool = False) -> argparse.ArgumentParser:
+    """The emulator's options; ``--scenario`` only where the caller can read scenarios."""
     p = p or argparse.ArgumentParser(prog="seafmu emulate", description=__doc__.splitlines()[0])
     p.add_argument("vessel", help="vessel file name (minerva2, amv_osf) or path")
     p.add_argument(
@@ -262,9 +267,10 @@ def build_parser(p: argparse.ArgumentParser | None = None) -> argparse.ArgumentP
         "--profile",
         help="hardware profile for the sentence and DBC mapping (default: by channel, seafmu DBC)",
     )
-    p.add_argument(
-        "--scenario", help="take the plant parameters (seed, current, initial state) from this scenario"
-    )
+    if scenarios:
+        p.add_argument(
+            "--scenario", help="take the plant parameters (seed, current, initial state) from this scenario"
+        )
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="a plant parameter (SI)")
     p.add_argument("--step", type=float, default=0.01, help="physics step, s (default 0.01)")
     p.add_argument("--status-rate", type=float, default=20.0, help="thruster status frames per second")
@@ -281,12 +287,13 @@ def build_parser(p: argparse.ArgumentParser | None = None) -> argparse.ArgumentP
     return p
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    return run_args(args)
+def main(argv: list[str] | None = None, scenario_params: PlantParameters | None = None) -> int:
+    """The command line; with ``scenario_params`` (``seafmu.emulate``) it takes ``--scenario``."""
+    args = build_parser(scenarios=scenario_params is not None).parse_args(argv)
+    return run_args(args, scenario_params)
 
 
-def run_args(args: argparse.Namespace) -> int:
+def run_args(args: argparse.Namespace, scenario_params: PlantParameters | None = None) -> int:
     bridges: list[NullModem] = []
     emu: VesselEmulator | None = None
     try:
@@ -328,7 +335,7 @@ def run_args(args: argparse.Namespace) -> int:
                 raise ValueError(f"--command-timeout must be > 0, got {args.command_timeout:g}")
         emu = VesselEmulator(
             profile,
-            _plant_params(args.scenario, args.set),
+            _plant_params(getattr(args, "scenario", None), args.set, scenario_params),
             args.step,
             args.status_rate,
             args.record,

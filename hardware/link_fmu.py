@@ -23,6 +23,7 @@ from pythonfmu import Fmi2Causality, Fmi2Slave, Fmi2Variability, Real, String
 from pythonfmu.enums import Fmi2Initial, Fmi2Status
 
 from ..fmus._slave import _dedupe_sys_path, _Py_IncRef, _release_pystate
+from ..fmus.model_description import BaseUnit, complete_model_description
 from .link import HardwareLink
 from .profile import load_profile
 
@@ -150,8 +151,12 @@ def _identifier(profile: str) -> str:
     return "".join(part.capitalize() for part in profile.replace("-", "_").split("_")) + "Link"
 
 
-def build_link_fmu(profile: str | Path, dest: str | Path) -> Path:
-    """Build the link FMU for ``profile`` (bundled name or YAML path) into folder or file ``dest``."""
+def build_link_fmu(profile: str | Path, dest: str | Path, base_unit: BaseUnit | None = None) -> Path:
+    """Build the link FMU for ``profile`` (bundled name or YAML path) into folder or file ``dest``.
+
+    ``base_unit`` (``seafmu.unitdefs.base_unit``, passed by ``seafmu build --link``) gives the
+    units their SI base units in the modelDescription; without it they are declared by name only.
+    """
     import pythonfmu
 
     prof = load_profile(profile)
@@ -197,14 +202,16 @@ def build_link_fmu(profile: str | Path, dest: str | Path) -> Path:
     built = Path(built)
     if built != out:
         built.replace(out)
-    complete_link_model_description(out, prof.name)
+    complete_link_model_description(out, prof.name, base_unit)
     return out
 
 
-def complete_link_model_description(fmu: Path, profile: str) -> None:
+def complete_link_model_description(fmu: Path, profile: str, base_unit: BaseUnit | None = None) -> None:
     """Units, min/max and InitialUnknowns, exactly as for seafmu's own FMUs."""
-    from seafmu.build import complete_model_description
-
     iface = HardwareLink.interface(profile)
     signals = {s.name: s for s in [*iface.inputs, *iface.outputs]}
-    complete_model_description(fmu, signals, tool="seafmu hardware link")
+    complete_model_description(fmu, signals, base_unit or _no_base_unit, tool="seafmu hardware link")
+
+
+def _no_base_unit(unit: str) -> None:
+    return None

@@ -17,15 +17,14 @@ import shutil
 import sys
 import tempfile
 import uuid
-import zipfile
 from dataclasses import dataclass
 from pathlib import Path
-from xml.etree import ElementTree as ET
 
 import pythonfmu
 
 from seafmu.components.vessel_spec import bundled_vessels, load_vessel
-from seafmu.unitdefs import UnitParseError, base_unit
+from seafmu.fmus.model_description import complete_model_description as _complete
+from seafmu.unitdefs import base_unit
 
 REPO = Path(__file__).resolve().parents[1]
 KINDS = ("plant", "observer", "controller", "allocator")
@@ -39,6 +38,8 @@ def _vessels_with_fmus() -> tuple[str, ...]:
 
 VESSELS = _vessels_with_fmus()
 SOURCE_PACKAGES = ("components", "fmus")
+# Not copied into an FMU: caches, and the build tool that completes the modelDescription.
+BUNDLE_IGNORE = ("__pycache__", "*.pyc", "model_description.py")
 
 
 def build_dir() -> Path:
@@ -173,7 +174,7 @@ def build_fmu(vessel: str, kind: str, force: bool = False) -> BuildResult:
         # import each other relatively, so they work under the bundle's name.
         root = Path(tmp) / "pkgs" / bundle
         for pkg in SOURCE_PACKAGES:
-            shutil.copytree(REPO / pkg, root / pkg, ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
+            shutil.copytree(REPO / pkg, root / pkg, ignore=shutil.ignore_patterns(*BUNDLE_IGNORE))
         (root / "__init__.py").write_text('"""seafmu packages bundled in an FMU (seafmu build)."""\n')
         requirements = Path(tmp) / "pkgs" / "requirements.txt"
         requirements.write_text(requirements_text(kind))
@@ -209,10 +210,9 @@ def build_all(vessels: tuple[str, ...] = VESSELS, force: bool = False) -> list[B
     return [build_fmu(v, k, force) for v in vessels for k in KINDS]
 
 
-# -- modelDescription completion ---------------------------------------------------------------
+# -- modelDescription completion (fmus/model_description.py) -----------------------------------
 
 def _signals_by_name(vessel: str, kind: str) -> dict:
-    from seafmu.components.vessel_spec import load_vessel
     from seafmu.fmus.registry import BLOCKS
 
     iface = BLOCKS[kind].interface(load_vessel(vessel))
@@ -220,70 +220,8 @@ def _signals_by_name(vessel: str, kind: str) -> dict:
 
 
 def complete_model_description(fmu: Path, signals: dict, tool: str = "seafmu build") -> None:
-    """Add units, min/max and InitialUnknowns to pythonfmu's modelDescription, in place.
-
-    ``signals`` maps variable names to ``components.block.Signal`` (unit, min, max).
-    """
-    with zipfile.ZipFile(fmu) as z:
-        members = {n: z.read(n) for n in z.namelist()}
-    root = ET.fromstring(members["modelDescription.xml"])
-
-    units = sorted({s.unit for s in signals.values() if s.unit})
-    for old in root.findall("UnitDefinitions"):  # idempotent: completing twice changes nothing
-        root.remove(old)
-    if units:
-        ud = ET.Element("UnitDefinitions")
-        for u in units:
-            unit = ET.SubElement(ud, "Unit", name=u)
-            try:  # SI exponents (and factor) so that a host can convert; none for sqrt units
-                base = base_unit(u)
-            except UnitParseError:
-                base = None
-            if base is not None:
-                ET.SubElement(unit, "BaseUnit", base)
-        # Schema order: CoSimulation, UnitDefinitions, TypeDefinitions, LogCategories, ...
-        root.insert(_first_index(root, ("TypeDefinitions", "LogCategories", "DefaultExperiment",
-                                        "VendorAnnotations", "ModelVariables")), ud)
-
-    outputs, initial_unknowns = [], []
-    for index, sv in enumerate(root.find("ModelVariables"), start=1):
-        sig = signals.get(sv.get("name"))
-        real = sv.find("Real")
-        if sig is not None and real is not None:
-            if sig.unit:
-                real.set("unit", sig.unit)
-            if sig.min is not None:
-                real.set("min", repr(float(sig.min)))
-            if sig.max is not None:
-                real.set("max", repr(float(sig.max)))
-        if sv.get("causality") == "output":
-            outputs.append(index)
-            initial_unknowns.append(index)
-    structure = root.find("ModelStructure")
-    for child in list(structure):
-        structure.remove(child)
-    if outputs:
-        o = ET.SubElement(structure, "Outputs")
-        for i in outputs:
-            ET.SubElement(o, "Unknown", index=str(i))
-        iu = ET.SubElement(structure, "InitialUnknowns")
-        for i in initial_unknowns:
-            ET.SubElement(iu, "Unknown", index=str(i))
-    root.set("generationTool", f"{tool} (pythonfmu {pythonfmu.__version__})")
-    ET.indent(root)
-    members["modelDescription.xml"] = ET.tostring(root, encoding="UTF-8", xml_declaration=True)
-    tmp = fmu.with_suffix(".tmp")
-    with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as z:
-        for name, data in members.items():
-            z.writestr(name, data)
-    tmp.replace(fmu)
-
-
-def _first_index(root: ET.Element, tags: tuple[str, ...]) -> int:
-    for i, child in enumerate(root):
-        if child.tag in tags:
-            return i
-    return len(root)
+    """``fmus.model_description.complete_model_description`` with seafmu's SI base units."""
+    _complete(fmu, signals, base_unit, tool=tool)
 
 
 def manifest() -> dict[str, str]:

@@ -37,8 +37,9 @@ def _cmd_build(args: argparse.Namespace) -> int:
     for profile in args.link or []:
         from seafmu.build import build_dir
         from seafmu.hardware.link_fmu import build_link_fmu
+        from seafmu.unitdefs import base_unit
 
-        print(f"built   {build_link_fmu(profile, build_dir())}")
+        print(f"built   {build_link_fmu(profile, build_dir(), base_unit=base_unit)}")
     return 0
 
 
@@ -194,11 +195,12 @@ def main(argv: list[str] | None = None) -> int:
                    help="write an SSP 1.0 archive (FMUs, connections, parameters)")
     x.add_argument("--osp", metavar="DIR", help="write OspSystemStructure.xml and the FMUs into DIR")
     x.set_defaults(fn=_cmd_export)
+    from seafmu.emulate import scenario_plant_parameters
     from seafmu.hardware.cli import register as register_hardware
     from seafmu.identification.cli import register as register_identification
 
     register_identification(sub)
-    register_hardware(sub)
+    register_hardware(sub, scenario_params=scenario_plant_parameters)
     args = parser.parse_args(argv)
     from seafmu.components.vessel_spec import VesselFileError
     from seafmu.export import ExportError

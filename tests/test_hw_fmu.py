@@ -18,12 +18,13 @@ from seafmu.hardware.emulator import VesselEmulator
 from seafmu.hardware.link_fmu import build_link_fmu
 from seafmu.hardware.profile import load_profile
 from seafmu.hardware.ptybridge import NullModem
+from seafmu.unitdefs import base_unit
 
 REPO = Path(__file__).resolve().parents[1]
 
 
 def test_link_fmu_validates_and_drives_the_emulated_vessel(tmp_path: Path) -> None:
-    fmu = build_link_fmu("emulator_pty", tmp_path)
+    fmu = build_link_fmu("emulator_pty", tmp_path, base_unit=base_unit)
     assert validate_fmu(str(fmu)) == []
     md = read_model_description(str(fmu))
     names = {v.name: v for v in md.modelVariables}

@@ -52,7 +52,7 @@ def _emulator(tmp_path: Path) -> tuple[subprocess.Popen[str], dict[str, str]]:
         [
             sys.executable,
             "-m",
-            "seafmu.hardware.emulator",
+            "seafmu.emulate",
             "minerva2",
             "--serial",
             f"pty:{SERIAL}",

@@ -395,7 +395,7 @@ def test_sigterm_of_a_hardware_run_stops_the_thrusters_and_finishes_the_recordin
     doc["fmus"]["plant"] = {"hardware": str(tmp_path / "profile.yaml")}
     (tmp_path / "hil.yaml").write_text(yaml.safe_dump(doc, sort_keys=False))
     emulator = subprocess.Popen(
-        [sys.executable, "-m", "seafmu.hardware.emulator", "minerva2", "--serial", f"pty:{ports / 'nmea'}",
+        [sys.executable, "-m", "seafmu.emulate", "minerva2", "--serial", f"pty:{ports / 'nmea'}",
          "--can", f"slcan:pty:{ports / 'slcan'}", "--scenario", "minerva2_dp", "--duration", "60"],
         cwd=REPO, stdout=subprocess.PIPE, text=True)
     out = tmp_path / "out"

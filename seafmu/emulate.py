@@ -1,0 +1,32 @@
+"""``python -m seafmu.emulate`` (= ``seafmu emulate``): the vessel emulator with ``--scenario``.
+
+The emulator (``seafmu.hardware.emulator``) sits below the scenario layer; this module reads the
+scenario and hands the emulator its plant parameters as plain data.
+"""
+
+from __future__ import annotations
+
+import sys
+from typing import Any
+
+
+def scenario_plant_parameters(scenario: str) -> dict[str, Any]:
+    """The plant instance's parameters of a scenario (seed, current, initial state), without
+    ``vessel_file``; none when the scenario has no seafmu plant."""
+    from seafmu.scenario import load_scenario
+
+    sc = load_scenario(scenario)
+    plant = next((i for i in sc.instances if i.kind == "plant"), None)
+    if plant is None:
+        return {}
+    return {k: v for k, v in plant.parameters.items() if k != "vessel_file"}
+
+
+def main(argv: list[str] | None = None) -> int:
+    from seafmu.hardware.emulator import main as emulator_main
+
+    return emulator_main(argv, scenario_params=scenario_plant_parameters)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
