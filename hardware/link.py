@@ -1,6 +1,7 @@
 """The hardware link: a real (or emulated) vessel in the plant's place in seafmu's master loop.
 
-``HardwareLink`` implements the master's unit protocol (``seafmu.master._Unit``) with the Plant
+``HardwareLink`` implements the master's unit protocol (``seafmu.unit.PacedUnit``, structurally: this
+layer does not import the one above) with the Plant
 FMU's variable names, so the observer, controller and allocator FMUs connect to it unchanged:
 
 - inputs ``n_cmd_1..m`` (rev/s) go out on the CAN bus every step, each clamped to the vessel's
@@ -21,7 +22,8 @@ outputs are left out, so a scenario that connects or checks them fails validatio
 
 Timing: ``do_step(t, h)`` sends the commands, then waits until wall time ``t + h`` (the
 ``Pacer``), then reads what arrived: its outputs are the vessel "at t + h", as a plant's are. So
-the link itself holds the master loop to real time (``pace=False`` leaves that to the caller).
+the link itself holds the master loop to real time (``pace=False`` leaves that to the caller); it
+declares so with ``paces_itself``, and reports how well with ``pacing_stats()``.
 
 Watchdog: the link reads once per step, so it knows only that a datum arrived between two polls;
 it takes the earlier one as the arrival time, and trips when a watched source (a sensor, or
@@ -251,6 +253,7 @@ class HardwareLink:
             report=self._report,
         )
         self.pace = pace
+        self.paces_itself = pace  # the unit protocol's pacing capability (seafmu/unit.py)
         self.pacer = Pacer(1.0)  # step set at the first do_step
         self._clock0: float | None = None
         self._last_feedback = -math.inf

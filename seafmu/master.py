@@ -47,6 +47,7 @@ from typing import Any, Literal, Protocol
 import numpy as np
 
 from seafmu.scenario import MAX_RESULT_BYTES, MAX_STEPS, Instance, Scenario
+from seafmu.unit import Unit, UnitRequest, is_paced, make_unit, register_unit_kind, run_errors, unit_kind
 
 Mode = Literal["fmu", "inprocess"]
 
@@ -155,23 +156,15 @@ class RunResult:
         return {k: 1e6 * v / max(self.steps[k], 1) for k, v in self.step_time.items()}
 
 
-# -- units: one FMU, or one Block in-process ---------------------------------------------------
+# -- units: one FMU, one Block in-process, or a hardware link (protocol: seafmu/unit.py) ---------
 
-class _Unit:
-    name: str
-    out_names: list[str]
-    in_names: list[str]
-
-    def initialize(self, values: np.ndarray) -> np.ndarray: ...
-    def set_inputs(self, values: np.ndarray) -> None: ...
-    def get_outputs(self) -> np.ndarray: ...
-    def do_step(self, t: float, h: float) -> None: ...
-    def set_value(self, var: str, value: Any) -> None: ...
-    def terminate(self) -> None: ...
+_Unit = Unit  # the former name of the protocol
 
 
-class BlockUnit(_Unit):
+class BlockUnit:
     """A Block driven directly: the in-process composition of the same components."""
+
+    paces_itself = False
 
     def __init__(self, inst: Instance, vessel: str, in_names: list[str]) -> None:
         from seafmu.components.block import full_params
@@ -359,8 +352,10 @@ def cleanup_extracted() -> None:
         _extract_lock_fd = None
 
 
-class FmuUnit(_Unit):
+class FmuUnit:
     """An FMU on fmpy's FMU2Slave, with preallocated ctypes buffers on the hot path."""
+
+    paces_itself = False
 
     def __init__(self, inst: Instance, fmu_file: Path, in_names: list[str], log: list[str]) -> None:
         from fmpy import read_model_description
@@ -461,6 +456,43 @@ class FmuUnit(_Unit):
             pass
 
 
+# -- the unit kinds (seafmu/unit.py: UNIT_KINDS) -------------------------------------------------
+
+@register_unit_kind("fmu")
+def _fmu_unit(req: UnitRequest) -> Unit:
+    """The instance's FMU: its ``fmu:`` file, the one given to ``run``, else seafmu's built FMU."""
+    path = req.fmu_file
+    if path is None:
+        from seafmu.build import build_fmu
+
+        path = build_fmu(req.vessel, req.instance.kind or "").path
+    return FmuUnit(req.instance, Path(path), req.in_names, req.log)
+
+
+@register_unit_kind("inprocess")
+def _block_unit(req: UnitRequest) -> Unit:
+    return BlockUnit(req.instance, req.vessel, req.in_names)
+
+
+def _hardware_errors() -> tuple[type[Exception], ...]:
+    from seafmu.hardware.link import HardwareError
+
+    return (HardwareError,)
+
+
+@register_unit_kind("hardware", errors=_hardware_errors)
+def _hardware_unit(req: UnitRequest) -> Unit:
+    """A real or emulated vessel behind the link; it paces the loop and records under record_dir."""
+    from seafmu.hardware.link import HardwareError, HardwareLink
+
+    inst = req.instance
+    try:
+        return HardwareLink(inst.hardware, name=inst.name, in_names=req.in_names, log_lines=req.log,
+                            record_dir=req.record_dir, vessel=req.vessel)
+    except (HardwareError, ValueError, OSError) as exc:
+        raise SimulationError(f"{inst.name}: {' '.join(str(exc).split())}") from None
+
+
 # -- the master loop ---------------------------------------------------------------------------
 
 def run(scenario: Scenario, mode: Mode = "fmu", progress: bool = True,
@@ -483,43 +515,27 @@ def run(scenario: Scenario, mode: Mode = "fmu", progress: bool = True,
     for si, sv, di, dv in scenario.connections:
         inputs_of.setdefault(di, []).append((dv, si, sv))
 
-    units: list[_Unit] = []
+    units: list[Unit] = []
+    kinds = {unit_kind(inst, mode) for inst in scenario.instances}
     try:
         for inst in scenario.instances:
+            fmu_file = inst.fmu_file or (fmu_files or {}).get(inst.name)
             in_names = [dv for dv, _, _ in inputs_of.get(inst.name, [])]
-            if inst.hardware is not None:
-                from seafmu.hardware.link import HardwareError, HardwareLink
-
-                try:
-                    units.append(HardwareLink(inst.hardware, name=inst.name, in_names=in_names, log_lines=log,
-                                              record_dir=record_dir, vessel=scenario.vessel))
-                except (HardwareError, ValueError, OSError) as exc:
-                    raise SimulationError(f"{inst.name}: {' '.join(str(exc).split())}") from None
-            elif mode == "inprocess":
-                units.append(BlockUnit(inst, scenario.vessel, in_names))
-            else:
-                path = inst.fmu_file or (fmu_files or {}).get(inst.name)
-                if path is None:
-                    from seafmu.build import build_fmu
-
-                    path = build_fmu(scenario.vessel, inst.kind or "").path
-                units.append(FmuUnit(inst, Path(path), in_names, log))
-        hw_errors: tuple[type[Exception], ...] = ()
-        if any(i.hardware for i in scenario.instances):
-            from seafmu.hardware.link import HardwareError
-
-            hw_errors = (HardwareError,)
+            request = UnitRequest(inst, in_names, scenario.vessel, log, record_dir=record_dir,
+                                  fmu_file=Path(fmu_file) if fmu_file else None)
+            units.append(make_unit(unit_kind(inst, mode), request))
+        unit_errors = run_errors(kinds)
         try:
             result = _loop(scenario, units, mode, progress, log, stop, sink)
-        except hw_errors as exc:  # a port that cannot open, a vessel that never answers
+        except unit_errors as exc:  # a port that cannot open, a vessel that never answers
             err = SimulationError(" ".join(str(exc).split()))
             err.partial = getattr(exc, "partial", None)
             if err.partial is not None:
                 err.partial.error = str(err)
             raise err from None
-        links = [u for u in units if hasattr(u, "pacing_stats")]
-        if links:
-            stats = links[0].pacing_stats()  # type: ignore[attr-defined]
+        paced = [u for u in units if is_paced(u)]
+        if paced:
+            stats = paced[0].pacing_stats()
             result.pacing, result.pacing_summary = stats.as_dict(), stats.summary()
         return result
     finally:
@@ -529,14 +545,14 @@ def run(scenario: Scenario, mode: Mode = "fmu", progress: bool = True,
             _stop_unit(u)
 
 
-def _stop_unit(u: _Unit) -> None:
+def _stop_unit(u: Unit) -> None:
     """A unit's clean stop: a hardware link's ``close()`` (thrusters zeroed and disabled, recording
     finished) where it has one, else ``terminate()``."""
     close = getattr(u, "close", None)
     (close if callable(close) else u.terminate)()
 
 
-def _loop(scenario: Scenario, units: list[_Unit], mode: str, progress: bool, log: list[str],
+def _loop(scenario: Scenario, units: list[Unit], mode: str, progress: bool, log: list[str],
           stop: StopRequest | None = None, sink: Sink | None = None) -> RunResult:
     # One flat "bus" of every output; inputs read slices of it through index arrays.
     slot: dict[tuple[str, str], int] = {}
@@ -641,7 +657,7 @@ def _loop(scenario: Scenario, units: list[_Unit], mode: str, progress: bool, log
     # A hardware link paces the loop itself (it sleeps to the wall clock inside its step); a
     # simulation-only run asked to be real-time gets a pacer here.
     pacer = None
-    if scenario.realtime and not any(hasattr(u, "pacing_stats") for u in units):
+    if scenario.realtime and not any(is_paced(u) for u in units):
         from seafmu.hardware.pacing import Pacer
 
         pacer = Pacer(h)

@@ -84,3 +84,41 @@ def test_a_slow_fmu_publishes_its_outputs_at_the_right_time(built_fmus: dict, tm
     np.testing.assert_allclose(north[2::2], ref.signals["plant.north"][1:], rtol=0, atol=1e-12)
     np.testing.assert_array_equal(north[1::2], north[0:-1:2])  # held between its steps
     assert ref.signals["plant.north"][-1] > 0.5
+
+
+def test_units_come_from_the_kind_registry_and_declare_pacing(monkeypatch) -> None:
+    """seafmu/unit.py: the master builds every unit through UNIT_KINDS (no if/else on the kind) and
+    asks a unit whether it paces the loop (``paces_itself``), never guesses from its attributes."""
+    from seafmu import unit
+    from seafmu.hardware.link import HardwareLink
+    from seafmu.master import BlockUnit, FmuUnit
+
+    assert {"fmu", "inprocess", "hardware"} <= set(unit.UNIT_KINDS)
+    assert BlockUnit.paces_itself is False and FmuUnit.paces_itself is False
+    assert unit.run_errors({"hardware"})[0].__name__ == "HardwareError" and unit.run_errors({"fmu"}) == ()
+
+    made: list[tuple[str, list[str]]] = []
+    block = unit.UNIT_KINDS["inprocess"]
+
+    def counting(req: unit.UnitRequest) -> unit.Unit:
+        u = block.make(req)
+        made.append((req.instance.name, req.in_names))
+        return u
+
+    monkeypatch.setitem(unit.UNIT_KINDS, "inprocess", dataclasses.replace(block, make=counting))
+    sc = _short("minerva2_dp", 1.0)
+    r = run(sc, mode="inprocess", progress=False)
+    assert [n for n, _ in made] == [i.name for i in sc.instances] and r.pacing is None
+    assert dict(made)["plant"] and all(n.startswith("n_cmd_") for n in dict(made)["plant"])
+
+    class Paced:  # a unit that declares pacing
+        paces_itself = True
+
+    assert unit.is_paced(Paced()) and not unit.is_paced(BlockUnit.__new__(BlockUnit))
+    assert callable(HardwareLink.pacing_stats)  # the link paces itself (pace=True) and reports how well
+    try:
+        unit.make_unit("nope", None)  # type: ignore[arg-type]
+    except ValueError as exc:
+        assert "unknown unit kind 'nope'" in str(exc)
+    else:
+        raise AssertionError("an unknown kind must be refused")
