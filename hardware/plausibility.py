@@ -29,7 +29,11 @@ class Limit:
     relative: bool = False
 
     def holds(self, value: float, scale: float = 1.0) -> bool:
-        return math.isfinite(value) and self.lo * scale <= value <= self.hi * scale
+        # A value sent at the bound comes back a little past it after the wire's rounding (20 m/s
+        # as 38.877 kn decodes to 20.00016 m/s): the bounds get a slack of 1e-4 of their size.
+        lo, hi = self.lo * scale, self.hi * scale
+        slack = 1e-4 * max(abs(lo), abs(hi))
+        return math.isfinite(value) and lo - slack <= value <= hi + slack
 
 
 # Wire fields (as sent, before conversion) and channels (SI, after conversion): one table.
