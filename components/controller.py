@@ -24,6 +24,7 @@ clamping (``_integrate``) and setpoint latching (``_latched``).
 from __future__ import annotations
 
 import math
+from abc import abstractmethod
 from typing import Any
 
 import numpy as np
@@ -97,7 +98,7 @@ class ControllerBlock(Block):
     def interface(cls, vessel: VesselSpec) -> Interface:
         if cls is ControllerBlock:
             return variant_class(vessel).interface(vessel)
-        raise NotImplementedError(f"{cls.__name__} must define interface()")  # pragma: no cover
+        raise TypeError(f"controller variant {cls.__name__} defines no interface()")  # pragma: no cover
 
     # -- interface helpers -----------------------------------------------------------------------
     @staticmethod
@@ -189,20 +190,21 @@ class ControllerBlock(Block):
         self.ref.set_dynamics(float(p["ref_omega"]), float(p["ref_zeta"]), v_max=v_lim)
 
     # -- what a variant defines ------------------------------------------------------------------
-    def _apply_params(self) -> None:  # pragma: no cover - every variant overrides it
-        raise NotImplementedError
+    @abstractmethod
+    def _apply_params(self) -> None:
+        """Derive the law's gains from the parameters (every variant has its own)."""
 
-    def _mode_key(self) -> tuple[int, ...]:  # pragma: no cover
+    @abstractmethod
+    def _mode_key(self) -> tuple[int, ...]:
         """What decides the control law; a change is a mode switch (bumpless transfer)."""
-        raise NotImplementedError
 
-    def _start_law(self, u: np.ndarray) -> None:  # pragma: no cover
+    @abstractmethod
+    def _start_law(self, u: np.ndarray) -> None:
         """Bumpless start from the initial inputs (reference model at the estimate)."""
-        raise NotImplementedError
 
-    def _step_law(self, h: float, u: np.ndarray, switched: bool) -> np.ndarray:  # pragma: no cover
+    @abstractmethod
+    def _step_law(self, h: float, u: np.ndarray, switched: bool) -> np.ndarray:
         """One step of the law: the outputs at t + h."""
-        raise NotImplementedError
 
     # -- run -----------------------------------------------------------------------------------
     def start(self, u: np.ndarray) -> np.ndarray:
