@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
@@ -20,7 +21,11 @@ def register(cls: type[CatalogueEffect]) -> type[CatalogueEffect]:
     return cls
 
 
-class CatalogueEffect:
+class EffectNotSupported(TypeError):
+    """A capability this effect does not have (e.g. a maneuver-level term of a static-only effect)."""
+
+
+class CatalogueEffect(ABC):
     """One catalogue effect. A model family the effect extends is a group of methods below.
 
     Every effect (1-2-DOF trials): ``absent_values(trial)``, ``static_bounds`` and
@@ -62,29 +67,31 @@ class CatalogueEffect:
         """Start values to try in a time-series fit, from the data's scales ``s`` (V speed, U
         command, F force, M inertia, Tv time constant, h sample step, dur record length), the
         baseline's values, the model (``timeseries.TSModel``) and the prepared runs."""
-        raise NotImplementedError(f"effect '{self.name}' has no time-series start grid")
+        raise EffectNotSupported(f"effect '{self.name}' has no time-series start grid")
 
     def static_start_grid(self, xmax: float) -> dict[str, list[float]]:
         """Start values of the parameters a static table is nonlinear in (none: solved linearly)."""
         return {}
 
+    @abstractmethod
     def applies(self, trial: Trial) -> str | None:
-        raise NotImplementedError(f"effect '{self.name}': applies() not written")
+        """Why the effect does not apply to ``trial`` (None: it applies)."""
 
+    @abstractmethod
     def evidence(self, params: dict[str, float], trial: Trial) -> str:
-        raise NotImplementedError(f"effect '{self.name}': evidence() not written")
+        """The sentence that names the effect with its fitted parameters."""
 
     def maneuver_params(self, d: int) -> list[str]:
-        raise NotImplementedError(f"effect '{self.name}' has no maneuver-level extension")
+        raise EffectNotSupported(f"effect '{self.name}' has no maneuver-level extension")
 
     def maneuver_scales(self, tau: np.ndarray) -> list[float]:
-        raise NotImplementedError(f"effect '{self.name}' has no maneuver-level extension")
+        raise EffectNotSupported(f"effect '{self.name}' has no maneuver-level extension")
 
     def maneuver_terms(self, P: np.ndarray) -> dict[str, np.ndarray]:
-        raise NotImplementedError(f"effect '{self.name}' has no maneuver-level extension")
+        raise EffectNotSupported(f"effect '{self.name}' has no maneuver-level extension")
 
     def maneuver_evidence(self, params: dict[str, float]) -> str:
-        raise NotImplementedError(f"effect '{self.name}' has no maneuver-level extension")
+        raise EffectNotSupported(f"effect '{self.name}' has no maneuver-level extension")
 
 
 def fmt(x: float) -> str:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from seafmu.components.dynamics import coriolis_force  # C_M(nu) nu, vectorised; one copy for all
 from seafmu.components.vessel_model import VesselModel
 from seafmu.components.vessel_spec import VesselSpec
 from seafmu.identification import effects
@@ -15,27 +16,6 @@ from seafmu.identification.effects import CatalogueEffect
 
 def _sym(A: np.ndarray) -> np.ndarray:
     return 0.5 * (A + np.swapaxes(A, -1, -2))
-
-
-def coriolis_force(M: np.ndarray, nu: np.ndarray) -> np.ndarray:
-    """C_M(nu) nu for every row of ``nu`` (..., d) with the symmetric part of M (..., d, d).
-
-    Same formula as ``kinematics.m2c`` / ``VesselModel``: [nu2 x a; nu1 x a + nu2 x b] with
-    [a; b] = M nu (6 DOF), [-r a_y, r a_x, u a_y - v a_x] (3 DOF). Linear in M.
-    """
-    a = np.einsum("...ij,...j->...i", _sym(M), nu)
-    if nu.shape[-1] == 6:
-        u, v, w, p, q, r = (nu[..., i] for i in range(6))
-        a1, a2, a3, b1, b2, b3 = (a[..., i] for i in range(6))
-        return np.stack([
-            q * a3 - r * a2, r * a1 - p * a3, p * a2 - q * a1,
-            v * a3 - w * a2 + q * b3 - r * b2,
-            w * a1 - u * a3 + r * b1 - p * b3,
-            u * a2 - v * a1 + p * b2 - q * b1,
-        ], axis=-1)
-    u, v, r = nu[..., 0], nu[..., 1], nu[..., 2]
-    ax, ay = a[..., 0], a[..., 1]
-    return np.stack([-r * ay, r * ax, u * ay - v * ax], axis=-1)
 
 
 def coriolis_tensor(M: np.ndarray) -> np.ndarray:
