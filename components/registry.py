@@ -42,6 +42,11 @@ CONTROLLERS: dict[str, Variant] = {v.name: v for v in (
             "heading (course) autopilot with open-loop surge force, PID with yaw-rate feed-forward or "
             "linear backstepping; joystick and land mode of an amphibious vessel (AMV OSF)",
             tuning=("kp", "kd", "ki", "ref_omega", "ref_zeta", "bs_k1", "bs_k2", "bs_ki")),
+    Variant("axis_trial", ".axis_trial", "AxisTrialController",
+            "test-plan trials (seafmu testplan): dp_pid's interface; the DOF with zero gains is free under an "
+            "open-loop joystick force, the others held at the starting pose",
+            tuning=("omega", "zeta", "omega_min_attitude", "attitude_factor", "integral_ratio", "ref_omega",
+                    "ref_zeta")),
 )}
 
 ALLOCATORS: dict[str, Variant] = {v.name: v for v in (
