@@ -35,6 +35,12 @@ class ManeuverData:
     ``tau`` is the force acting on the vessel from its thrusters (B T), in the model's DOF order
     (X, Y, Z, K, M, N or X, Y, N). ``nu_dot`` is given only when accelerations were measured.
     ``source`` says where the data came from and, for CSVs, which columns gave tau.
+
+    ``thrust`` (n, m), when the log has one column per thruster, is each thruster's thrust as
+    logged (from its shaft speed through the thrust law: what it should deliver), and
+    ``efficiency`` (m,) the fraction of it the vessel file says reaches the hull, so that
+    tau = B diag(efficiency) thrust. A thruster that delivers less than the file says
+    (``effects/thruster_loss.py``) is found from these two.
     """
 
     t: np.ndarray
@@ -44,6 +50,8 @@ class ManeuverData:
     dof: int
     source: str
     nu_dot: np.ndarray | None = None
+    thrust: np.ndarray | None = None
+    efficiency: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.t = np.asarray(self.t, dtype=float)
@@ -58,6 +66,23 @@ class ManeuverData:
             if arr.shape != (n, d):
                 raise TrialError(f"{self.source}: {name} has shape {arr.shape}, expected ({n}, {d})")
             setattr(self, name, arr)
+        if self.thrust is not None:
+            thr = np.asarray(self.thrust, dtype=float)
+            if thr.ndim != 2 or thr.shape[0] != n:
+                raise TrialError(f"{self.source}: thrust has shape {thr.shape}, expected ({n}, thrusters)")
+            self.thrust = thr
+            m = thr.shape[1]
+            eff = np.ones(m) if self.efficiency is None else np.asarray(self.efficiency, dtype=float)
+            if eff.shape != (m,):
+                raise TrialError(f"{self.source}: efficiency has shape {eff.shape}, expected ({m},)")
+            self.efficiency = eff
+
+    @property
+    def thrust_on_hull(self) -> np.ndarray | None:
+        """Per-thruster thrust reaching the hull as the vessel file says (thrust x efficiency)."""
+        if self.thrust is None or self.efficiency is None:
+            return None
+        return self.thrust * self.efficiency
 
     @property
     def n(self) -> int:
@@ -68,6 +93,7 @@ class ManeuverData:
         return ManeuverData(
             t=self.t[idx], eta=self.eta[idx], nu=self.nu[idx], tau=self.tau[idx], dof=self.dof,
             source=self.source, nu_dot=None if self.nu_dot is None else self.nu_dot[idx],
+            thrust=None if self.thrust is None else self.thrust[idx], efficiency=self.efficiency,
         )
 
 
@@ -220,7 +246,11 @@ def load_maneuver_csv(path: Path, vessel: VesselSpec, columns: dict[str, str] | 
     problems += _thrust_problems(tau_raw, [header[i] for i in tau_cols], vessel, tau_cols is i_thr)
     if problems:
         raise TrialError("\n".join(f"{path}: {p}" for p in problems))
-    tau = tau_raw @ B.T if tau_cols is i_thr else tau_raw
+    per_thruster = tau_cols is i_thr
+    eff = thruster_efficiency(vessel)
+    tau = (tau_raw * eff) @ B.T if per_thruster else tau_raw
+    if per_thruster and np.any(eff != 1.0):
+        tau_note += f", efficiencies {', '.join(f'{e:.3g}' for e in eff)} from the vessel file"
     return ManeuverData(
         t=table[:, i_t],
         eta=table[:, i_eta],
@@ -229,7 +259,17 @@ def load_maneuver_csv(path: Path, vessel: VesselSpec, columns: dict[str, str] | 
         dof=d,
         source=f"{path} [{tau_note}]",
         nu_dot=table[:, nu_dot_idx] if have_nu_dot else None,
+        thrust=tau_raw if per_thruster else None,
+        efficiency=eff if per_thruster else None,
     )
+
+
+def thruster_efficiency(vessel: VesselSpec) -> np.ndarray:
+    """The fraction of each thruster's nominal thrust that reaches the hull, from the vessel file
+    (thrusters' ``efficiency``; 1 where the file gives none)."""
+    m = vessel.thrusters.count
+    eff = getattr(vessel.thrusters, "efficiency", None)
+    return np.ones(m) if eff is None else np.broadcast_to(np.asarray(eff, dtype=float), (m,)).copy()
 
 
 _SIX_ONLY = ("down", "roll", "pitch", "w", "p", "q")  # eta/nu names a 3-DOF vessel lacks
@@ -328,10 +368,15 @@ def _thrust_problems(tau_raw: np.ndarray, cols: list[str], vessel: VesselSpec,
 
 def write_maneuver_csv(data: ManeuverData, path: Path, provenance: str = "") -> Path:
     """The log as a CSV that ``load_maneuver_csv`` reads without a column map (SI units):
-    time, eta names, nu names, tau_X ... (one '#' provenance line first)."""
+    time, eta names, nu names, tau_X ..., and thrust_1 ... when the log has per-thruster thrust
+    (then the reader takes tau from them, through the vessel file; one '#' provenance line first)."""
     d = data.dof
     names = ["time", *ETA_NAMES[d], *NU_NAMES[d], *(f"tau_{n}" for n in TAU_NAMES[d])]
-    table = np.column_stack([data.t, data.eta, data.nu, data.tau])
+    cols = [data.t, data.eta, data.nu, data.tau]
+    if data.thrust is not None:
+        names += [f"thrust_{i + 1}" for i in range(data.thrust.shape[1])]
+        cols.append(data.thrust)
+    table = np.column_stack(cols)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path, "w", newline="") as fh:

@@ -27,6 +27,9 @@ class _Prepared:
     nu_raw: np.ndarray
     edge: int  # samples at each end where the derivative filter is one-sided
     note: str
+    # per-thruster thrust on the hull as the vessel file says (n, m), filtered like tau; None when
+    # the log gives tau only (tau = B thrust when present)
+    thrust: np.ndarray | None = None
 
 
 def _uniform(data: ManeuverData, warnings: list[str]) -> ManeuverData:
@@ -43,7 +46,9 @@ def _uniform(data: ManeuverData, warnings: list[str]) -> ManeuverData:
 
     warnings.append(f"non-uniform sampling: resampled linearly onto a {med:g} s grid")
     return ManeuverData(t=t, eta=interp(data.eta), nu=interp(data.nu), tau=interp(data.tau), dof=data.dof,
-                        source=data.source, nu_dot=None if data.nu_dot is None else interp(data.nu_dot))
+                        source=data.source, nu_dot=None if data.nu_dot is None else interp(data.nu_dot),
+                        thrust=None if data.thrust is None else interp(data.thrust),
+                        efficiency=data.efficiency)
 
 
 def noise_ratio(nu: np.ndarray) -> float:
@@ -64,14 +69,15 @@ def _prepare(data: ManeuverData, derivative: str, smoothing: float | None, polyo
     Central differences: ``np.gradient`` (second order), no smoothing.
     """
     dt = float(np.median(np.diff(data.t)))
+    thrust = data.thrust_on_hull
     if derivative == "measured":
         if data.nu_dot is None:
             raise TrialError(f"{data.source}: derivative='measured' but the log has no nu_dot")
         return _Prepared(data.t, dt, data.eta, data.nu, data.nu_dot, data.tau, data.nu, 0,
-                         "nu_dot measured (from the log)")
+                         "nu_dot measured (from the log)", thrust)
     if derivative == "central":
         return _Prepared(data.t, dt, data.eta, data.nu, np.gradient(data.nu, dt, axis=0), data.tau,
-                         data.nu, 1, "nu_dot by central differences (np.gradient), no smoothing")
+                         data.nu, 1, "nu_dot by central differences (np.gradient), no smoothing", thrust)
     if derivative != "savgol":
         raise ValueError(f"derivative must be one of {', '.join(DERIVATIVES)}, got {derivative!r}")
     min_win = polyorder + 3 if polyorder % 2 == 0 else polyorder + 2
@@ -89,4 +95,5 @@ def _prepare(data: ManeuverData, derivative: str, smoothing: float | None, polyo
         data.t, dt, eta, sg(data.nu), sg(data.nu, 1), sg(data.tau), data.nu, win // 2,
         f"nu_dot by Savitzky-Golay (order {polyorder}, window {win} samples = {win * dt:.3g} s); "
         "nu, roll/pitch and tau smoothed by the same filter",
+        None if thrust is None else sg(thrust),
     )

@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from seafmu.components.thrusters import thruster_matrix
 from seafmu.components.vessel_spec import VesselSpec
 from seafmu.identification import fitting
 from seafmu.identification.maneuver.preprocessing import _Prepared
@@ -47,6 +48,11 @@ class _Simulator:
         self.M_RB = _sym(np.asarray(vessel.M_RB, dtype=float))
         self.psi: np.ndarray | None = None  # (S, L+1) measured heading (unwrapped), for a current
         self.psi_mid: np.ndarray | None = None  # (S, L)
+        # per-thruster thrust on the hull (S, L+1, m) and at the midpoints (S, L), with B (d, m):
+        # a thruster's gain (thrust_gain) changes tau by B diag(gain - 1) thrust
+        self.thrust: np.ndarray | None = None
+        self.thrust_mid: np.ndarray | None = None
+        self.B = thruster_matrix(vessel.thrusters, self.d)
 
     def _current(self, vc: np.ndarray, psi: np.ndarray, x: np.ndarray) -> np.ndarray:
         """Body-frame current nu_c (K, S, d) from the NED current vc (K, 2) at heading psi (1, S)."""
@@ -92,10 +98,12 @@ class _Simulator:
         return np.concatenate([phi_dot[..., None], th_dot[..., None], nu_dot], axis=-1)
 
     def run(self, M: np.ndarray, DL: np.ndarray, DQ: np.ndarray, x0: np.ndarray | None = None,
-            F0: np.ndarray | None = None, vc: np.ndarray | None = None) -> np.ndarray:
+            F0: np.ndarray | None = None, vc: np.ndarray | None = None,
+            thrust_gain: np.ndarray | None = None) -> np.ndarray:
         """Simulated states (K, S, L+1, nx) for K parameter sets (M, DL, DQ each (K, d, d));
         ``x0`` (K, S, nx) replaces the measured segment starts; ``F0`` (K, d) constant force,
-        ``vc`` (K, 2) NED current (see the class docstring)."""
+        ``vc`` (K, 2) NED current (see the class docstring); ``thrust_gain`` (K, m) the fraction
+        of each thruster's thrust that acts (needs ``thrust``, set by ``_sim_setup``)."""
         K = M.shape[0]
         cur = vc is not None and self.psi is not None and self.psi_mid is not None
         d = self.d
@@ -114,12 +122,19 @@ class _Simulator:
         out[:, :, 0] = x
         h = self.h
         f0 = 0.0 if F0 is None else np.asarray(F0, dtype=float)[:, None, :]
+        dtau = dtau_mid = None
+        if thrust_gain is not None and self.thrust is not None and self.thrust_mid is not None:
+            dB = (np.asarray(thrust_gain, dtype=float) - 1.0)[:, :, None] * self.B.T[None]  # (K, m, d)
+            dtau = np.einsum("slm,kmd->ksld", self.thrust, dB)
+            dtau_mid = np.einsum("slm,kmd->ksld", self.thrust_mid, dB)
         vck = np.asarray(vc, dtype=float) if cur and vc is not None else None
         no_psi = (None, None, None)
         with np.errstate(all="ignore"):
             for k in range(self.length):
                 t0, tm, t1 = (self.tau[None, :, k] + f0, self.tau_mid[None, :, k] + f0,
                               self.tau[None, :, k + 1] + f0)
+                if dtau is not None and dtau_mid is not None:
+                    t0, tm, t1 = t0 + dtau[:, :, k], tm + dtau_mid[:, :, k], t1 + dtau[:, :, k + 1]
                 p0, pm, p1 = no_psi if vck is None else (
                     self.psi[None, :, k], self.psi_mid[None, :, k], self.psi[None, :, k + 1])  # type: ignore[index]
                 k1 = self._f(x, t0, W, vck, p0)
@@ -164,6 +179,10 @@ def _sim_setup(vessel: VesselSpec, prep: _Prepared, i0: int, i1: int, segment: f
     psi = np.unwrap(prep.eta[:, d - 1])  # yaw: last eta entry (3 and 6 DOF)
     sim.psi = psi[sel][sim.idx]
     sim.psi_mid = np.interp(t_mid, prep.t, psi)
+    if prep.thrust is not None:
+        sim.thrust = prep.thrust[sel][sim.idx]
+        sim.thrust_mid = np.stack([np.interp(t_mid, prep.t, prep.thrust[:, j])
+                                   for j in range(prep.thrust.shape[1])], axis=-1)
     meas = prep.nu_raw[sel][sim.idx]
     mask = sim.valid.copy()
     mask[:, 0] = False
