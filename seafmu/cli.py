@@ -1,4 +1,4 @@
-"""The ``seafmu`` command: build, check, run and export scenarios.
+"""The ``seafmu`` command: build, check, run, sweep and export scenarios.
 
 Exit codes: 0 the run ended and its checks pass; 1 a check fails; 2 bad input or a failure (bad
 scenario, FMU error, missing file, output folder in use by another run), one line on stderr;
@@ -111,9 +111,10 @@ def _run(args: argparse.Namespace, stop: StopRequest) -> int:
     from seafmu.outdir import RunFolder
     from seafmu.report import write_failure_report, write_placeholder_report, write_report
     from seafmu.results import CsvStream, evaluate_checks, summary, write_summary
-    from seafmu.scenario import load_scenario
+    from seafmu.scenario import load_scenario, parse_override
 
-    sc = load_scenario(args.scenario)
+    overrides = [parse_override(s) for s in args.set or []]
+    sc = load_scenario(args.scenario, overrides, args.seed)
     if args.coupling:
         sc = dataclasses.replace(sc, coupling=args.coupling)
     if stop.requested:
@@ -144,6 +145,10 @@ def _run(args: argparse.Namespace, stop: StopRequest) -> int:
         checks = evaluate_checks(result)
         data = summary(result, checks)
         write_summary(data, out / "summary.json")
+        if args.format == "parquet":
+            from seafmu.results import write_parquet
+
+            write_parquet(result, out / "results.parquet")
         report = write_report(result, checks, data, out)  # last: a report means every file is complete
     print(f"{sc.name}: {result.t_end:g} s simulated in {result.wall_time:.2f} s "
           f"(real-time factor {result.realtime_factor:.0f}, mode {mode}, {sc.coupling} coupling)")
@@ -188,7 +193,17 @@ def main(argv: list[str] | None = None) -> int:
                    help="override the scenario's coupling: gauss-seidel (each FMU reads the newest "
                    "outputs) or jacobi (every FMU steps with the outputs of the previous step, as libcosim "
                    "and ecos do)")
+    r.add_argument("--set", action="append", metavar="INST.VAR=VALUE",
+                   help="override a parameter as the scenario file would set it (units, ranges checked), "
+                   "e.g. plant.current_speed=0.2m/s; INST.VAR@TIME=VALUE adds an event; repeatable")
+    r.add_argument("--seed", type=int, help="seed of every random source of the scenario (sensor noise, "
+                   "waves, current): every parameter named seed")
+    r.add_argument("--format", choices=("csv", "parquet"), default="csv",
+                   help="parquet: also write results.parquet beside results.csv")
     r.set_defaults(fn=_cmd_run)
+    from seafmu.sweep.cli import register as register_sweep
+
+    register_sweep(sub)
     x = sub.add_parser("export", help="write a scenario for other engines: SSP 1.0 file and/or OSP folder")
     x.add_argument("scenario")
     x.add_argument("--ssp", metavar="FILE.ssp",
@@ -208,11 +223,12 @@ def main(argv: list[str] | None = None) -> int:
     from seafmu.master import SimulationError
     from seafmu.outdir import OutputFolderError
     from seafmu.scenario import ScenarioError
+    from seafmu.sweep.study import StudyError
 
     try:
         return args.fn(args)
     except (ScenarioError, SimulationError, VesselFileError, TrialError, OutputFolderError, ExportError,
-            OSError) as exc:
+            StudyError, OSError) as exc:
         print(f"seafmu: error: {one_line(str(exc))}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

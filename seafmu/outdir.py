@@ -21,8 +21,8 @@ from collections.abc import Iterator
 from pathlib import Path
 
 LOCK_FILE = ".seafmu-run.lock"
-OUTPUTS = ("results.csv", "summary.json", "report.md", "trajectory.png", "states.png", "thrusters.png",
-           "allocation.png")
+OUTPUTS = ("results.csv", "results.parquet", "summary.json", "report.md", "trajectory.png", "states.png",
+           "thrusters.png", "allocation.png")
 OUTPUT_DIRS = ("recording",)
 
 

@@ -218,6 +218,8 @@ def write_report(result: RunResult, checks: list[CheckResult], summary: dict[str
         "|---|---|",
         f"| vessel | {sc.vessel} |",
         f"| scenario file | `{sc.source}` |",
+        *([f"| overrides | {', '.join(f'`--set {o}`' for o in sc.overrides)} |"] if sc.overrides else []),
+        *([f"| seed (every random source) | {sc.seed} |"] if sc.seed is not None else []),
         f"| mode | {result.mode} |",
         f"| simulated time | {result.t_end:g} s of {sc.duration:g} s, step {sc.step:g} s"
         f"{' (stopped early)' if stopped else ''} |",
@@ -248,6 +250,8 @@ def write_report(result: RunResult, checks: list[CheckResult], summary: dict[str
     if failed:
         lines += ["Figures that could not be drawn:", "", *[f"- {f}" for f in failed], ""]
     lines += ["## Files", "", "- `results.csv`: every recorded signal, one column per `instance.variable`",
+              *(["- `results.parquet`: the same signals as Parquet (pandas, pyarrow)"]
+                if (out / "results.parquet").is_file() else []),
               "- `summary.json`: timing, checks and messages, for scripts", ""]
     path = out / "report.md"
     atomic_write_text(path, "\n".join(lines))

@@ -18,7 +18,7 @@ import numpy as np
 
 from seafmu.master import RunResult
 from seafmu.outdir import atomic_write_text
-from seafmu.scenario import time_slack
+from seafmu.scenario import Check, time_slack
 
 CSV_FORMAT = "%.10g"
 
@@ -47,6 +47,13 @@ _METRICS = {
 }
 
 
+def check_name(c: Check) -> str:
+    """A check's name: its own, else what it measures and where."""
+    label = c.signal if c.minus is None else f"{c.signal} - {c.minus}"
+    window = f"t >= {c.after:g} s" + (f", t <= {c.before:g} s" if c.before is not None else "")
+    return c.name or f"{c.metric}({label}) over {window}"
+
+
 def evaluate_checks(result: RunResult) -> list[CheckResult]:
     """Each check over its window; one that cannot be evaluated FAILs with a note saying why."""
     out = []
@@ -54,10 +61,8 @@ def evaluate_checks(result: RunResult) -> list[CheckResult]:
     t_end = result.scenario.duration if result.t_end is None else result.t_end
     for c in result.scenario.checks:
         y = np.array(result.signals[c.signal], dtype=float)
-        label = c.signal
         if c.minus is not None:
             y = y - result.signals[c.minus]
-            label = f"{c.signal} - {c.minus}"
         if c.angle:
             y = _wrap(y)
         mask = t >= c.after - time_slack(c.after)
@@ -82,8 +87,7 @@ def evaluate_checks(result: RunResult) -> list[CheckResult]:
         if c.min is not None:
             ok = ok and value >= c.min
             bounds.append(f">= {c.min:g}")
-        window = f"t >= {c.after:g} s" + (f", t <= {c.before:g} s" if c.before is not None else "")
-        name = c.name or f"{c.metric}({label}) over {window}"
+        name = check_name(c)
         out.append(CheckResult(name, c.metric, value, " and ".join(bounds), ok, note))
     return out
 
@@ -128,9 +132,25 @@ class CsvStream:
                 self._fh = None
 
 
+def write_parquet(result: RunResult, path: Path) -> None:
+    """The recorded signals as Parquet (pandas + pyarrow; time first, one column per signal),
+    written atomically: what a script or a study opens without parsing text."""
+    import pandas as pd
+
+    from seafmu.outdir import atomic_path
+
+    frame = pd.DataFrame({"time": result.time, **result.signals})
+    with atomic_path(path) as tmp:
+        frame.to_parquet(tmp, engine="pyarrow", index=False)
+
+
 def summary(result: RunResult, checks: list[CheckResult]) -> dict[str, Any]:
     sc = result.scenario
+    given = {"overrides": list(sc.overrides)} if sc.overrides else {}
+    if sc.seed is not None:
+        given["seed"] = sc.seed
     return {
+        **given,
         "scenario": sc.name,
         "source": str(sc.source),
         "vessel": sc.vessel,

@@ -159,6 +159,8 @@ class Scenario:
     checks: list[Check]
     realtime: bool = False
     coupling: Coupling = "gauss-seidel"
+    overrides: tuple[str, ...] = ()  # the --set texts applied (for the record and a reproducing command)
+    seed: int | None = None  # the --seed applied
 
     def instance(self, name: str) -> Instance:
         return next(i for i in self.instances if i.name == name)
@@ -202,14 +204,123 @@ def scenario_path(name_or_path: str | Path | None) -> Path:
     raise ScenarioError(f"scenario '{name_or_path}': no such file or shipped scenario (shipped: {known})")
 
 
-def load_scenario(name_or_path: str | Path | None = None) -> Scenario:
+@dataclass(frozen=True)
+class Override:
+    """One ``--set instance.variable=value`` (or ``instance.variable@TIME=value``: an event at TIME).
+
+    ``value`` is the YAML reading of the text after ``=`` (``5`` a number, ``true`` a boolean,
+    ``0.2 m/s`` a quantity), so an override is the same value the scenario file could hold, and it
+    goes through the same validation (``load_scenario``).
+    """
+
+    instance: str
+    variable: str
+    value: Value
+    text: str  # as given, for messages and the command line that reproduces a run
+    time: float | None = None  # an event at this time instead of a parameter
+
+    @property
+    def label(self) -> str:
+        return f"--set {self.text}"
+
+
+_SET = re.compile(r"^\s*([A-Za-z_][A-Za-z0-9_-]*)\.([A-Za-z_][A-Za-z0-9_\[\].]*)"
+                  r"\s*(?:@\s*([^=]+?))?\s*=(.*)$")
+
+
+def parse_override(text: str) -> Override:
+    """``plant.current_speed=0.2m/s`` -> Override; a malformed text is a one-line ScenarioError."""
+    import yaml
+
+    m = _SET.match(text)
+    if not m:
+        raise ScenarioError(f"--set {text!r}: must read instance.variable=value "
+                            "(e.g. plant.current_speed=0.2m/s) or instance.variable@TIME=value")
+    inst, var, at, raw = m.groups()
+    if not raw.strip():
+        raise ScenarioError(f"--set {text}: no value after '='")
+    try:
+        value = yaml.safe_load(raw)
+    except yaml.YAMLError:
+        value = raw.strip()
+    if isinstance(value, str):  # '0.2m/s' is the unit table's '0.2 m/s'
+        value = value.strip()
+    if value is None or isinstance(value, list | dict):
+        raise ScenarioError(f"--set {text}: the value must be a number, a quantity, text or true/false")
+    time = None
+    if at is not None:
+        try:
+            time = to_si(at.strip(), "s")
+        except UnitError as exc:
+            raise ScenarioError(f"--set {text}: event time: {exc}") from None
+        if not math.isfinite(time) or time < 0:
+            raise ScenarioError(f"--set {text}: event time must be finite and >= 0")
+    return Override(inst, var, value, text.strip(), time)
+
+
+def _apply_overrides(doc: dict[str, Any], overrides: list[Override], path: Path) -> dict[str, str]:
+    """Write the overrides into the scenario document (parameters, or events at a time) before
+    validation; returns the labels that replace the file's field names in error messages."""
+    labels: dict[str, str] = {}
+    if not overrides:
+        return labels
+    fmus = doc.get("fmus")
+    if fmus is None:  # the vessel's four FMUs by default: spelled out so a parameter can be set
+        fmus = doc["fmus"] = {k: {"kind": k} for k in KINDS}
+    if not isinstance(fmus, dict):
+        return labels  # the schema reports the malformed field itself
+    events = doc.setdefault("events", [])
+    for o in overrides:
+        if o.instance not in fmus:
+            raise ScenarioError(f"{path}: {o.label}: unknown FMU '{o.instance}' "
+                                f"(FMUs: {', '.join(map(str, fmus))})")
+        if o.time is not None:
+            if not isinstance(events, list):
+                return labels
+            labels[f"events.{len(events)}"] = o.label
+            labels[f"events[{len(events)}]"] = o.label
+            events.append({"time": o.time, "set": f"{o.instance}.{o.variable}", "value": o.value})
+            continue
+        entry = fmus[o.instance]
+        if not isinstance(entry, dict):
+            return labels
+        params = entry.setdefault("parameters", {})
+        if not isinstance(params, dict):
+            return labels
+        params[o.variable] = o.value
+        labels[f"fmus.{o.instance}.parameters.{o.variable}"] = o.label
+    return labels
+
+
+def _relabel(message: str, labels: dict[str, str]) -> str:
+    """A message about a field an override wrote names the override instead."""
+    for field, label in labels.items():
+        if message.startswith(field + ":") or message.startswith(field + "."):
+            rest = message.partition(":")[2]
+            return f"{label}:{rest}"
+    return message
+
+
+def load_scenario(name_or_path: str | Path | None = None, overrides: list[Override] | None = None,
+                  seed: int | None = None) -> Scenario:
+    """Read, validate and resolve a scenario; ``overrides`` (``--set``) and ``seed`` (``--seed``:
+    every parameter named ``seed`` or ``*_seed``, so it reaches every random source) are applied
+    to the document first and validated by the same code as the file's own values."""
+    import copy
+
     path = scenario_path(name_or_path)
     doc = read_mapping(path, "scenario", ScenarioError)
+    if overrides:
+        doc = copy.deepcopy(doc)
+    labels = _apply_overrides(doc, list(overrides or []), path)
     try:
         model = ScenarioModel.model_validate(doc)
     except ValidationError as exc:
-        raise ScenarioError(f"{path}: {validation_message(exc)}") from None
-    return resolve(model, path)
+        raise ScenarioError(f"{path}: {_relabel(validation_message(exc), labels)}") from None
+    sc = resolve(model, path, labels, seed)
+    sc.overrides = tuple(o.text for o in overrides or [])
+    sc.seed = seed
+    return sc
 
 
 def _fail(path: Path, where: str, msg: str) -> ScenarioError:
@@ -401,7 +512,11 @@ def _check_time_grid(model: ScenarioModel, path: Path) -> float:
     return ratio
 
 
-def resolve(model: ScenarioModel, path: Path) -> Scenario:
+def resolve(model: ScenarioModel, path: Path, labels: dict[str, str] | None = None,
+            seed: int | None = None) -> Scenario:
+    """The validated model made into a runnable Scenario; ``labels`` name the ``--set`` that wrote
+    a field in its messages; ``seed`` goes to every seed parameter."""
+    labels = labels or {}
     from seafmu.build import VESSELS
     from seafmu.components.vessel_spec import VesselFileError, bundled_vessels, load_vessel
 
@@ -423,6 +538,7 @@ def resolve(model: ScenarioModel, path: Path) -> Scenario:
         raise _fail(path, "fmus", f"{len(model.fmus)} FMUs; a scenario is limited to {MAX_FMUS}")
     entries = model.fmus if model.fmus is not None else {k: FmuEntry(kind=k) for k in KINDS}
     instances: list[Instance] = []
+    seeded: list[str] = []
     for name, e in entries.items():
         where = f"fmus.{name}"
         if not re.match(_IDENT, name):
@@ -444,17 +560,26 @@ def resolve(model: ScenarioModel, path: Path) -> Scenario:
                 raise _fail(path, f"{where}.fmu", f"not a readable FMU ({first})") from None
         params = {}
         for pname, value in e.parameters.items():
+            field = f"{where}.parameters.{pname}"
+            field = labels.get(field, field)
             info = variables.get(pname)
             if info is None:
-                raise _fail(path, f"{where}.parameters.{pname}", f"no such variable in FMU '{name}'")
+                raise _fail(path, field, f"no such variable in FMU '{name}'")
             if info.causality not in ("parameter", "input"):
-                raise _fail(path, f"{where}.parameters.{pname}", f"is an {info.causality}; it cannot be set")
-            params[pname] = _convert(value, info, path, f"{where}.parameters.{pname}")
+                raise _fail(path, field, f"is an {info.causality}; it cannot be set")
+            params[pname] = _convert(value, info, path, field)
+        if seed is not None:
+            for v in variables.values():
+                if v.causality == "parameter" and (v.name == "seed" or v.name.endswith("_seed")):
+                    params[v.name] = _convert(seed, v, path, f"--seed (fmus.{name}.{v.name})")
+                    seeded.append(f"{name}.{v.name}")
         if e.kind is not None and params.get("vessel_file"):
             params["vessel_file"] = _check_vessel_file(params["vessel_file"], model.vessel, e.kind, path,
                                                        f"{where}.parameters.vessel_file", spec)
         instances.append(Instance(name, e.kind, fmu_file, e.step_multiple, params, variables,
                                   hardware=_profile_path(e.hardware, path) if e.hardware else None))
+    if seed is not None and not seeded:
+        raise _fail(path, "--seed", "no FMU of this scenario has a seed parameter (nothing random to seed)")
     by_name = {i.name: i for i in instances}
 
     def lookup(ref: str, where: str, causality: tuple[str, ...]) -> tuple[str, str, VarInfo]:
@@ -503,7 +628,7 @@ def resolve(model: ScenarioModel, path: Path) -> Scenario:
 
     events = []
     for k, ev in enumerate(model.events):
-        where = f"events[{k}]"
+        where = labels.get(f"events[{k}]", f"events[{k}]")
         inst, var, info = lookup(ev.set, where, ("input", "parameter"))
         if (inst, var) in connections:
             raise _fail(path, where, f"{ev.set} is driven by a connection; an event cannot set it")
@@ -514,7 +639,8 @@ def resolve(model: ScenarioModel, path: Path) -> Scenario:
         k_ev = ev.time / model.step
         if abs(k_ev - round(k_ev)) > 1e-6:
             raise _fail(path, where, f"time {ev.time} s is not on the step grid ({model.step} s)")
-        events.append((ev.time, inst, var, _convert(ev.value, info, path, f"{where}.value")))
+        value_field = where if where.startswith("--set") else f"{where}.value"
+        events.append((ev.time, inst, var, _convert(ev.value, info, path, value_field)))
     events.sort(key=lambda e: e[0])
 
     record_every = 1

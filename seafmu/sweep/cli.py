@@ -1,0 +1,112 @@
+"""``seafmu sweep STUDY.yaml``: validate every case, run them on Dask, write cases.parquet and the report.
+
+Exit codes as ``seafmu run``: 0 every case ran and passed its checks, 1 every case ran and some
+failed a check or could not run (each recorded with its one-line error), 2 bad input (the study
+file, a case that does not validate, a scheduler that cannot be reached), 128 + the signal number
+when SIGINT, SIGTERM or SIGHUP stopped the study (finished cases kept; a rerun continues).
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import sys
+from pathlib import Path
+from typing import Any
+
+from seafmu.sweep.study import Study, StudyError, load_study
+
+
+def register(sub: Any) -> None:
+    s = sub.add_parser("sweep", help="run a study (grid, Monte Carlo) over a scenario on Dask")
+    s.add_argument("study", help="study file (studies/<name>/study.yaml, or a path)")
+    s.add_argument("--dry-run", action="store_true",
+                   help="validate every case and print the case table; run nothing")
+    s.add_argument("--workers", type=int, metavar="N",
+                   help="worker processes of the local cluster (default: the cores available)")
+    s.add_argument("--scheduler", metavar="ADDRESS",
+                   help="an existing Dask scheduler (tcp://HOST:8786); default DASK_SCHEDULER_ADDRESS, "
+                   "else a local cluster")
+    s.add_argument("--out", metavar="DIR", help="study folder (default: results/sweeps/<study name>)")
+    s.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    s.set_defaults(fn=cmd_sweep)
+
+
+def study_path(arg: str) -> Path:
+    """A path, or the name of a shipped study (studies/<name>/study.yaml)."""
+    p = Path(arg)
+    if p.is_file():
+        return p
+    from seafmu.scenario import REPO
+
+    shipped = REPO / "studies" / arg / "study.yaml"
+    if not p.suffix and shipped.is_file():
+        return shipped
+    known = ", ".join(sorted(q.parent.name for q in (REPO / "studies").glob("*/study.yaml")))
+    raise StudyError(f"study '{arg}': no such file or shipped study (shipped: {known})")
+
+
+def _case_table(study: Study, done: dict[int, dict[str, Any]]) -> list[str]:
+    names = list(study.inputs)
+    head = ["case", "seed", *names, "status"]
+    rows = []
+    for c in study.cases:
+        vals = [f"{c.inputs[n]:.6g}" if isinstance(c.inputs[n], float) else str(c.inputs[n]) for n in names]
+        rows.append([str(c.index), "" if c.seed is None else str(c.seed), *vals,
+                     done[c.index]["status"] if c.index in done else "to run"])
+    widths = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(head)]
+    fmt = "  ".join(f"{{:<{w}}}" for w in widths)
+    return [fmt.format(*head), *(fmt.format(*r) for r in rows)]
+
+
+def _build(study: Study) -> None:
+    """Build the base scenario's FMUs once here, before the workers start (they only read them)."""
+    from seafmu.build import build_fmu
+    from seafmu.scenario import load_scenario
+
+    sc = load_scenario(study.scenario_file)
+    for inst in sc.instances:
+        if inst.kind is not None and build_fmu(sc.vessel, inst.kind).rebuilt:
+            print(f"built {sc.vessel} {inst.kind}")
+
+
+def cmd_sweep(args: argparse.Namespace) -> int:
+    from seafmu.master import StopRequest, stop_on_signals
+    from seafmu.sweep.execute import StudyFolder, run_study, write_cases
+    from seafmu.sweep.report import write_study_report
+
+    if args.workers is not None and args.workers < 1:
+        raise StudyError(f"--workers {args.workers}: must be at least 1")
+    study = load_study(study_path(args.study))  # every case validated here, before anything runs
+    out = Path(args.out) if args.out else Path("results") / "sweeps" / study.name
+    if args.dry_run:
+        done = StudyFolder(out).finished(study) if out.is_dir() else {}
+        for line in _case_table(study, done):
+            print(line)
+        print(f"{study.name}: {len(study.cases)} cases, all valid; {len(study.cases) - len(done)} to run"
+              f"{f' ({len(done)} finished in {out})' if done else ''}")
+        return 0
+    _build(study)
+    stop = StopRequest()
+    with stop_on_signals(stop), StudyFolder(out) as folder:
+        if study.source.resolve() != (out / "study.yaml").resolve():  # what was run, beside its results
+            shutil.copyfile(study.source, out / "study.yaml")
+        outcome = run_study(study, folder, workers=args.workers, scheduler=args.scheduler,
+                            progress=not args.quiet, stop=stop)
+        cases = write_cases(study, folder, outcome.rows)
+        report, worst = write_study_report(study, outcome, out)
+    statuses = [r["status"] for r in outcome.rows.values()]
+    n = len(statuses)
+    print(f"{study.name}: {n} of {outcome.total} cases finished ({outcome.skipped} before, {outcome.ran} now"
+          f"{f' on {outcome.workers} workers in {outcome.wall_time:.1f} s' if outcome.ran else ''}): "
+          f"{statuses.count('pass')} pass, {statuses.count('fail')} fail a check, "
+          f"{statuses.count('error')} could not run")
+    for line in worst:
+        print(f"  worst: {line}")
+    print(f"cases: {cases}")
+    print(f"report: {report}")
+    if outcome.interrupted:
+        print(f"seafmu: sweep interrupted ({outcome.interrupted}); {n} of {outcome.total} cases kept in "
+              f"{out}; run the same command again to finish", file=sys.stderr)
+        return stop.exit_code
+    return 0 if statuses.count("pass") == outcome.total else 1

@@ -1,0 +1,268 @@
+"""Running a study on Dask: the cluster, the study folder, resume, Ctrl-C, the progress bar.
+
+- Cluster: by default a local ``dask.distributed.LocalCluster`` of worker processes (one thread
+  each, so each process holds one FMU set and runs one case at a time), listening on 127.0.0.1
+  only, no dashboard. ``--scheduler tcp://HOST:8786`` (or ``DASK_SCHEDULER_ADDRESS``) connects to
+  an existing cluster instead (``dask scheduler`` / ``dask worker``, dask-jobqueue on HPC); its
+  workers need seafmu installed, the FMUs built and the scenario files at the same paths.
+- Study folder: ``cases/case_<n>.json`` is written (atomically) as each case finishes, holding the
+  case's key (a hash of the base scenario, its overrides, seed and what is computed): a rerun of
+  the same study into the same folder skips every case whose row is there with the same key, so
+  nothing is lost and nothing done twice; a changed study reruns only the cases it changed.
+  ``cases.parquet`` is made from the rows at the end (also after an interruption). The folder is
+  locked (flock) while a study runs in it.
+- Stop: SIGINT, SIGTERM and SIGHUP only set a flag (``seafmu.master.stop_on_signals``); the loop
+  then cancels the cases not finished, closes the client and the cluster, and keeps every row
+  already written. Worker processes start with SIGINT ignored, so a Ctrl-C in the terminal (which
+  reaches the whole process group) does not kill them mid-case with tracebacks; the parent closes
+  them.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import json
+import logging
+import os
+import signal
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from seafmu.master import StopRequest
+from seafmu.outdir import atomic_path, atomic_write_text
+from seafmu.sweep.study import Case, Study, StudyError
+from seafmu.sweep.worker import PASS, run_case
+
+LOCK_FILE = ".seafmu-sweep.lock"
+ROWS = "cases"
+SERIES = "timeseries"
+
+
+def default_workers() -> int:
+    """The cores this process may use (affinity, not the machine's count)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not Linux
+        return max(1, os.cpu_count() or 1)
+
+
+class StudyFolder:
+    """``with StudyFolder(path):`` the folder created and locked for this study run."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = Path(path)
+        self._fd: int | None = None
+
+    def __enter__(self) -> StudyFolder:
+        (self.path / ROWS).mkdir(parents=True, exist_ok=True)
+        fd = os.open(self.path / LOCK_FILE, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            owner = os.pread(fd, 32, 0).decode("ascii", "replace").strip()
+            os.close(fd)
+            who = f" (pid {owner})" if owner.isdigit() else ""
+            raise StudyError(f"{self.path}: in use by another seafmu sweep{who}; wait for it or use "
+                             "--out") from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        self._fd = fd
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self._fd is not None:
+            fcntl.flock(self._fd, fcntl.LOCK_UN)
+            os.close(self._fd)
+            self._fd = None
+
+    def row_path(self, case: Case) -> Path:
+        return self.path / ROWS / f"case_{case.index:05d}.json"
+
+    def finished(self, study: Study) -> dict[int, dict[str, Any]]:
+        """Rows already in the folder for these very cases (same key); others are ignored."""
+        done = {}
+        for c in study.cases:
+            p = self.row_path(c)
+            try:
+                row = json.loads(p.read_text(encoding="utf-8"))
+            except (OSError, ValueError):
+                continue
+            if isinstance(row, dict) and row.get("key") == c.key:
+                done[c.index] = row
+        return done
+
+    def write_row(self, case: Case, row: dict[str, Any]) -> None:
+        series = row.pop("_series", None)
+        if series is not None:
+            import pandas as pd
+
+            (self.path / SERIES).mkdir(exist_ok=True)
+            with atomic_path(self.path / SERIES / f"case_{case.index:05d}.parquet") as tmp:
+                pd.DataFrame(series).to_parquet(tmp, engine="pyarrow", index=False)
+        atomic_write_text(self.row_path(case), json.dumps(row, default=_plain) + "\n")
+
+
+def _plain(x: Any) -> Any:
+    if isinstance(x, np.generic):
+        return x.item()
+    return str(x)
+
+
+def cases_frame(study: Study, rows: dict[int, dict[str, Any]]) -> Any:
+    """One row per finished case, in case order, with the reproducing command; columns of mixed
+    types become text and pass columns nullable booleans, so Parquet can hold them."""
+    import pandas as pd
+
+    recs = []
+    for c in study.cases:
+        r = rows.get(c.index)
+        if r is None:
+            continue
+        rec = dict(r)
+        rec["sample"] = c.sample
+        rec["overrides"] = " ".join(c.overrides)
+        rec["command"] = c.command(study.scenario_arg)
+        recs.append(rec)
+    frame = pd.DataFrame.from_records(recs)
+    if frame.empty:
+        return frame
+    for col in frame.columns:
+        if col.startswith(PASS):
+            frame[col] = frame[col].astype("boolean")
+        elif frame[col].dtype == object:
+            kinds = {type(v) for v in frame[col]
+                     if v is not None and not (isinstance(v, float) and np.isnan(v))}
+            if len(kinds) > 1:
+                frame[col] = frame[col].map(lambda v: None if v is None else str(v))
+    return frame
+
+
+def write_cases(study: Study, folder: StudyFolder, rows: dict[int, dict[str, Any]]) -> Path:
+    frame = cases_frame(study, rows)
+    path = folder.path / "cases.parquet"
+    with atomic_path(path) as tmp:
+        frame.to_parquet(tmp, engine="pyarrow", index=False)
+    return path
+
+
+@contextlib.contextmanager
+def _sigint_ignored() -> Iterator[None]:
+    """Child processes started inside inherit SIGINT ignored (dispositions survive exec)."""
+    try:
+        old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    except ValueError:  # not the main thread
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)
+
+
+def make_client(workers: int | None, scheduler: str | None) -> tuple[Any, Any]:
+    """(client, local cluster or None): an existing scheduler if one is named, else a local one."""
+    from distributed import Client, LocalCluster
+
+    address = scheduler or os.environ.get("DASK_SCHEDULER_ADDRESS") or None
+    if address:
+        try:
+            return Client(address, timeout="15s"), None
+        except (OSError, TimeoutError, ValueError) as exc:
+            where = "--scheduler" if scheduler else "DASK_SCHEDULER_ADDRESS"
+            raise StudyError(f"{where} {address}: cannot connect ({' '.join(str(exc).split())})") from None
+    n = workers or default_workers()
+    with _sigint_ignored():
+        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
+                               dashboard_address=None, silence_logs=logging.ERROR)
+    return Client(cluster), cluster
+
+
+@dataclass
+class Outcome:
+    total: int
+    skipped: int  # finished before this run
+    ran: int  # finished in this run
+    interrupted: str  # the signal's name, or ""
+    rows: dict[int, dict[str, Any]]
+    wall_time: float
+    workers: int
+
+
+def _task(study: Study, c: Case) -> dict[str, Any]:
+    return {"case": c.index, "key": c.key, "seed": c.seed, "inputs": c.inputs, "overrides": c.overrides,
+            "scenario": str(study.scenario_file), "metrics": [m.model_dump() for m in study.model.metrics],
+            "keep": list(study.model.keep)}
+
+
+def run_study(study: Study, folder: StudyFolder, workers: int | None = None, scheduler: str | None = None,
+              progress: bool = True, stop: StopRequest | None = None) -> Outcome:
+    """Run the cases not finished yet on Dask; rows are written as cases finish."""
+    from distributed import as_completed
+
+    stop = stop or StopRequest()
+    rows = folder.finished(study)
+    skipped = len(rows)
+    todo = [c for c in study.cases if c.index not in rows]
+    t0 = time.perf_counter()
+    if not todo:
+        return Outcome(len(study.cases), skipped, 0, "", rows, 0.0, 0)
+    n_workers = min(workers or default_workers(), len(todo))
+    client, cluster = make_client(n_workers, scheduler)
+    bar = None
+    ran = 0
+    futures: dict[Any, Case] = {}
+    try:
+        n_workers = len(client.scheduler_info().get("workers", {})) or n_workers
+        for c in todo:
+            fut = client.submit(run_case, _task(study, c), key=f"seafmu-case-{c.index}-{c.key}", pure=False)
+            futures[fut] = c
+        if progress:
+            from tqdm import tqdm
+
+            bar = tqdm(total=len(study.cases), initial=skipped, desc=study.name, unit="case", smoothing=0.1)
+        ac = as_completed(list(futures), with_results=False)
+        fails = sum(1 for r in rows.values() if r.get("status") != "pass")
+        while not ac.is_empty() and not stop.requested:
+            batch = ac.next_batch(block=False)
+            if not batch:
+                time.sleep(0.1)
+                continue
+            for fut in batch:
+                c = futures[fut]
+                if fut.status == "cancelled":
+                    continue
+                if fut.status == "error":
+                    exc = fut.exception()
+                    row = {"case": c.index, "key": c.key, "seed": c.seed, **c.inputs, "status": "error",
+                           "error": f"the worker running this case failed ({type(exc).__name__}: "
+                                    f"{' '.join(str(exc).split())[:300]})", "wall_time_s": float("nan")}
+                else:
+                    row = fut.result()
+                folder.write_row(c, row)
+                rows[c.index] = row
+                ran += 1
+                fails += row["status"] != "pass"
+                if bar is not None:
+                    bar.update(1)
+                    bar.set_postfix(failed=fails, refresh=False)
+                fut.release()
+    finally:
+        if bar is not None:
+            bar.close()
+        pending = [f for f in futures if not f.done()]
+        if pending:
+            with contextlib.suppress(Exception):
+                client.cancel(pending)
+        with contextlib.suppress(Exception):
+            client.close(timeout=10)
+        if cluster is not None:
+            with contextlib.suppress(Exception):
+                cluster.close(timeout=10)
+    return Outcome(len(study.cases), skipped, ran, stop.name if stop.requested else "", rows,
+                   time.perf_counter() - t0, n_workers)
