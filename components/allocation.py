@@ -510,7 +510,6 @@ class AllocatorBlock(Block):
         outputs += [Signal(f"tau_alloc_{t}", FORCE_UNIT[t], f"allocated generalised force {t} = B T")
                     for t in vessel.tau_names]
         outputs.append(Signal("alloc_error", "", "||B T - tau|| after thrust limits (N and N.m mixed)"))
-        # Added with the QP allocator (appended: the earlier outputs keep their positions).
         outputs += [Signal(f"sat_{i + 1}", "", f"1 = thruster {th.names[i]} at a thrust or rate limit "
                            "(clipped, or at a bound of the QP), 0 = inside")
                     for i in range(m)]
@@ -523,7 +522,7 @@ class AllocatorBlock(Block):
         for i in range(m):
             params.append(Signal(f"w_{i + 1}", "", f"pseudo-inverse weight of thruster {th.names[i]} "
                                  "(higher = used less; ignored by the two-screw priority method)",
-                                 min=0.0, start=1.0, tunable=True))
+                                 min=0.0, min_open=True, start=1.0, tunable=True))
         for i in range(m):
             params.append(Signal(f"reverse_weight_{i + 1}", "",
                                  f"weight of thruster {th.names[i]} used instead of w when its thrust "
@@ -533,11 +532,11 @@ class AllocatorBlock(Block):
             params.append(Signal(f"enable_{i + 1}", "", f"1 = thruster {th.names[i]} in use, 0 = dropped "
                                  "or failed (thrust counted as that of stuck_n; command 0)", min=0, max=1,
                                  start=1, type="integer", tunable=True))
-        # Added with the QP allocator.
-        params.append(Signal("method", "", "legacy selector: 0 = the variant named by 'allocator', 1 = qp "
+        params.append(Signal("method", "", "selector: 0 = the variant named by 'allocator', 1 = qp "
                              "(constrained QP), 2 = pinv_camera (thesis S on camera thrusters going "
                              "negative), 3 = qp_camera (QP minimising negative camera thrust)",
-                             min=0, max=len(METHODS) - 1, start=0, type="integer", tunable=True))
+                             min=0, max=len(METHODS) - 1, start=0, type="integer", tunable=True,
+                             choices=tuple(range(len(METHODS)))))
         camera = default_camera_thrusters(vessel)
         for i in range(m):
             params.append(Signal(f"camera_{i + 1}", "", f"1 = thruster {th.names[i]}'s reverse jet hits "
@@ -561,7 +560,6 @@ class AllocatorBlock(Block):
             params.append(Signal(f"stuck_n_{i + 1}", "rev/s", f"shaft speed of thruster {th.names[i]} "
                                  "while enable = 0 (0 = stopped; else the speed it is stuck at): its "
                                  "thrust is a known force", min=-n_max, max=n_max, start=0.0, tunable=True))
-        # Added with the registry of named variants.
         params.append(Signal("allocator", "", f"allocation variant ({', '.join(registry.ALLOCATORS)}); "
                              "default: the vessel file's gnc.allocator. Used when method = 0",
                              start=declared_law_name(vessel), type="string", tunable=True))
@@ -570,54 +568,39 @@ class AllocatorBlock(Block):
     def __init__(self, vessel: VesselSpec, params: dict[str, Any]) -> None:
         super().__init__(vessel, params)
         th = vessel.thrusters
-        self._m = th.count
-        self._names = self.interface(vessel).input_names()
+        self._m = m = th.count
         self.B = thruster_matrix(th, vessel.dof)
         self.T_min, self.T_max = max_thrust(th)
         self._U = float(max(np.abs(self.T_min).max(), self.T_max.max()))
         self._C = error_scale(self.B, self._U)  # QP: thrust-equivalent scale of each DOF's error
         self._cache: dict[tuple, np.ndarray] = {}
         self._qps: dict[tuple, QPAllocator] = {}
-        m, d = self._m, vessel.dof
-        self._y = np.zeros(3 * m + d + 4)
+        self._in_tau = self.inp.at(f"tau_{t}" for t in vessel.tau_names)
+        o = self.out
+        thr = range(1, m + 1)
+        self._o_n = o.at(f"n_cmd_{i}" for i in thr)
+        self._o_T = o.at(f"thrust_cmd_{i}" for i in thr)
+        self._o_tau = o.at(f"tau_alloc_{t}" for t in vessel.tau_names)
+        self._o_sat = o.at(f"sat_{i}" for i in thr)
+        self._o_err, self._o_front = o["alloc_error"], o["front_negative_thrust"]
+        self._o_energy, self._o_iter = o["thrust_energy"], o["qp_iterations"]
+        self._y = np.zeros(len(o))
         self._T_prev = np.zeros(m)
-        for name, value in self.params.items():
-            self._check(name, value)
+        self._check_variant(self.params["allocator"])
         self._apply_params()
 
     # -- parameters ----------------------------------------------------------------------------
-    def _check(self, name: str, value: Any) -> None:
-        if name == "allocator":
-            try:
-                registry.check("allocator", value)
-            except ValueError as exc:
-                raise ValueError(f"allocator: parameter 'allocator': {exc}") from None
-            return
+    @staticmethod
+    def _check_variant(value: Any) -> None:
+        """The allocation variant must be registered (the registry's error names the known ones)."""
         try:
-            v = float(value)
-        except (TypeError, ValueError):
-            raise ValueError(f"allocator: parameter '{name}' must be a number, got {value!r}") from None
-        if not np.isfinite(v):
-            raise ValueError(f"allocator: parameter '{name}' must be finite, got {value!r}")
-        if name.startswith("w_") and not v > 0.0:
-            raise ValueError(f"allocator: parameter '{name}' must be a positive finite weight, got {value!r}")
-        if name.startswith(("reverse_weight_", "priority_", "thrust_rate_max_", "camera_penalty",
-                            "camera_weight")) and v < 0.0:
-            raise ValueError(f"allocator: parameter '{name}' must be >= 0, got {value!r}")
-        binary = name.startswith("enable_") or (name.startswith("camera_") and name[7:].isdigit())
-        if binary and v not in (0.0, 1.0):
-            raise ValueError(f"allocator: parameter '{name}' must be 0 or 1, got {value!r}")
-        if name == "method" and v not in range(len(METHODS)):
-            choices = ", ".join(f"{i} = {m}" for i, m in enumerate(METHODS))
-            raise ValueError(f"allocator: parameter 'method' must be one of {choices}, got {value!r}")
-        if name.startswith("stuck_n_"):
-            n_max = float(self.vessel.thrusters.n_max[int(name.rsplit("_", 1)[1]) - 1])
-            if abs(v) > n_max:
-                raise ValueError(f"allocator: parameter '{name}' must be within +-{n_max:g} rev/s, "
-                                 f"got {value!r}")
+            registry.check("allocator", value)
+        except ValueError as exc:
+            raise ValueError(f"allocator: parameter 'allocator': {exc}") from None
 
     def set_parameter(self, name: str, value: Any) -> None:
-        self._check(name, value)
+        if name == "allocator":
+            self._check_variant(value)
         super().set_parameter(name, value)
         self._apply_params()
 
@@ -730,11 +713,12 @@ class AllocatorBlock(Block):
         return self._y.copy()
 
     def step(self, t: float, h: float, u: np.ndarray) -> np.ndarray:
-        tau = np.asarray(u, dtype=float)
-        if tau.shape != (self.vessel.dof,):
-            raise ValueError(f"allocator: expected {self.vessel.dof} inputs, got {tau.shape}")
-        if not np.isfinite(tau).all():
-            bad = [n for n, v in zip(self._names, tau.tolist(), strict=True) if not np.isfinite(v)]
+        u = np.asarray(u, dtype=float)
+        if u.shape != (len(self.inp),):
+            raise ValueError(f"allocator: expected {len(self.inp)} inputs, got {u.shape}")
+        tau = u[self._in_tau]
+        if not np.isfinite(u).all():
+            bad = [n for n, v in zip(self.inp.names, u.tolist(), strict=True) if not np.isfinite(v)]
             raise ValueError(f"allocator: input '{bad[0]}' is not finite")
         T, sat, iterations = self.allocate(tau, h)
         self._T_prev = T
@@ -742,15 +726,13 @@ class AllocatorBlock(Block):
         if self._any_off:
             n = np.where(self._off, 0.0, n)  # a failed or dropped thruster is commanded to stop
         tau_alloc = self.B @ T
-        m, d = self._m, self.vessel.dof
         y = self._y
-        y[:m] = n
-        y[m : 2 * m] = T
-        k = 2 * m + d
-        y[2 * m : k] = tau_alloc
-        y[k] = np.linalg.norm(tau_alloc - tau)
-        y[k + 1 : k + 1 + m] = sat
-        y[k + 1 + m] = negative_front_thrust(T, self._camera) if self._camera else 0.0
-        y[k + 2 + m] = T @ T
-        y[k + 3 + m] = iterations
+        y[self._o_n] = n
+        y[self._o_T] = T
+        y[self._o_tau] = tau_alloc
+        y[self._o_err] = np.linalg.norm(tau_alloc - tau)
+        y[self._o_sat] = sat
+        y[self._o_front] = negative_front_thrust(T, self._camera) if self._camera else 0.0
+        y[self._o_energy] = T @ T
+        y[self._o_iter] = iterations
         return y.copy()

@@ -37,7 +37,7 @@ class AxisTrialController(DPPidController):
 
     def _start_law(self, u: np.ndarray) -> None:
         super()._start_law(u)
-        self._hold = u[: self.dof].copy()
+        self._hold = u[self._in_eta].copy()
 
     def _mode_key(self) -> tuple[int, ...]:
         return (0,)  # one law: a mode change is no switch
@@ -50,7 +50,7 @@ class AxisTrialController(DPPidController):
 
     def _step_law(self, h: float, u: np.ndarray, switched: bool) -> np.ndarray:
         d = self.dof
-        eta, nu = u[:d], u[d : 2 * d]
+        eta, nu = u[self._in_eta], u[self._in_nu]
         if not self._started or not hasattr(self, "_hold"):
             self._hold = eta.copy()
             self._started = True
@@ -70,8 +70,7 @@ class AxisTrialController(DPPidController):
         force[:nt] = R @ force[:nt]
         tau_new = -(Jt @ force)
         tab = self._tab
-        j0 = self._i_joy
-        joy = np.clip(u[j0 : j0 + len(tab.joy_tau)], -1.0, 1.0)
+        joy = np.clip(u[self._in_joy], -1.0, 1.0)
         for kk, ti in enumerate(tab.joy_tau):
             tau_new[ti] += joy[kk] * self._joy_max[kk]
         tau = np.minimum(np.maximum(tau_new, -self.tau_max), self.tau_max)
@@ -82,6 +81,6 @@ class AxisTrialController(DPPidController):
         free = (self.kp == 0.0) & (self.kd == 0.0) & (self.ki == 0.0)
         self._integrate(h, np.where(free, 0.0, e), tau_new, tau, Jt @ Rfull)
         y = np.zeros(self._n_out)
-        y[:d] = tau
-        y[d : 2 * d] = self._hold
+        y[self._o_tau] = tau
+        y[self._o_eta_d] = self._hold
         return y

@@ -16,9 +16,10 @@ master and the tests keep using ``ControllerBlock``. The string parameter ``cont
 accepted when its interface is the same (an FMU's variables cannot change with a parameter),
 otherwise the error says to name it in the vessel file.
 
-Shared here: parameter checks, the run skeleton (``start``, ``step``, inputs from before the
-joystick was added), bumpless transfer between modes (``_blend``), conditional integration with
-clamping (``_integrate``) and setpoint latching (``_latched``).
+Shared here: the run skeleton (``start``, ``step``), bumpless transfer between modes
+(``_blend``), conditional integration with clamping (``_integrate``) and setpoint latching
+(``_latched``). Parameters are checked by ``Block`` from their Signals; a variant adds only
+checks that involve the vessel or another value (``_check``).
 """
 
 from __future__ import annotations
@@ -38,17 +39,6 @@ from .reference_model import ReferenceModel
 from .vessel_spec import ANGLE_NAMES, VesselSpec
 
 BETA_MIN_SPEED = 0.1  # m/s: below this the crab angle atan2(v, u) is noise, course mode uses beta = 0
-
-# Parameter checks shared by the variants (names do not collide between them).
-INT_CHOICES = {
-    "mode": tuple(range(6)), "guide_yaw_mode": (0, 1), "lm_side": (-1, 1), "course_mode": (0, 1),
-    "autopilot": (0, 1), "land_mode": (0, 1), "joystick": (0, 1),
-}
-SIGNED = {"lm_heading", "lm_north", "lm_east"}
-POSITIVE = {"ref_omega", "ref_zeta", "guide_speed", "guide_accel", "guide_acceptance", "guide_yaw_rate",
-            "lm_length"}
-TEXT = {"waypoints", "controller_variant"}
-
 
 def restoring_stiffness(vessel: VesselSpec) -> np.ndarray:
     """Diagonal of dg/deta at eta = 0 (hydrostatic stiffness, only roll and pitch are non-zero)."""
@@ -104,10 +94,10 @@ class ControllerBlock(Block):
     @staticmethod
     def _ref_params(omega: float, zeta: float = 1.0) -> list[Signal]:
         return [
-            Signal("ref_omega", "rad/s", "reference-model natural frequency", min=0.0, start=omega,
-                   tunable=True),
+            Signal("ref_omega", "rad/s", "reference-model natural frequency", min=0.0, min_open=True,
+                   start=omega, tunable=True),
             Signal("ref_zeta", "", "reference-model damping ratio (1 = critically damped)", min=0.0,
-                   start=zeta, tunable=True),
+                   min_open=True, start=zeta, tunable=True),
         ]
 
     @staticmethod
@@ -117,13 +107,10 @@ class ControllerBlock(Block):
                       start=declared_variant(vessel), type="string")
 
     # -- set-up shared by the variants -----------------------------------------------------------
-    def _setup(self, vessel: VesselSpec, n_ref: int, ref_angles: list[bool], n_legacy_in: int) -> None:
+    def _setup(self, vessel: VesselSpec, n_ref: int, ref_angles: list[bool]) -> None:
         """State every variant has; call from the variant's ``__init__`` before its own."""
-        iface = self.interface(vessel)
-        self._in_names = iface.input_names()
-        self._in_start = np.array([float(s.start) for s in iface.inputs])
-        self._n_legacy_in = n_legacy_in  # the inputs before the joystick was added
-        self._n_out = len(iface.outputs)
+        self._n_out = len(self.out)
+        self._o_tau = self.out.at(f"tau_{t}" for t in vessel.tau_names)
         d = self.dof = vessel.dof
         self._angles = [n in ANGLE_NAMES for n in vessel.eta_names]
         self._angle_idx = np.flatnonzero(self._angles)
@@ -142,34 +129,9 @@ class ControllerBlock(Block):
         self._ref_seen = np.full(n_ref, np.nan)
 
     def _check(self, name: str, value: Any) -> None:
-        if name in TEXT:
-            if not isinstance(value, str):
-                raise ValueError(f"controller: parameter '{name}' must be text, got {value!r}")
-            if name == "waypoints" and value.strip():
-                parse_waypoints(value)
-            return
-        try:
-            v = float(value)
-        except (TypeError, ValueError):
-            raise ValueError(f"controller: parameter '{name}' must be a number, got {value!r}") from None
-        if not math.isfinite(v):
-            raise ValueError(f"controller: parameter '{name}' must be finite, got {value!r}")
-        if name in INT_CHOICES:
-            if v not in INT_CHOICES[name]:
-                allowed = ", ".join(str(c) for c in INT_CHOICES[name])
-                raise ValueError(f"controller: parameter '{name}' must be one of {allowed}, got {value!r}")
-        elif name == "lm_lines":
-            if v < 1 or not v.is_integer():
-                raise ValueError(f"controller: parameter 'lm_lines' must be a whole number >= 1, "
-                                 f"got {value!r}")
-        elif name in POSITIVE:
-            if v <= 0.0:
-                raise ValueError(f"controller: parameter '{name}' must be positive, got {value!r}")
-        elif name in ("ff_gain", "joy_deadband"):
-            if not 0.0 <= v <= 1.0:
-                raise ValueError(f"controller: parameter '{name}' must be within [0, 1], got {value!r}")
-        elif name not in SIGNED and v < 0.0:
-            raise ValueError(f"controller: parameter '{name}' must be >= 0, got {value!r}")
+        """What the Signal metadata cannot say (Block checks type and range first)."""
+        if name == "waypoints" and value.strip():
+            parse_waypoints(value)
 
     def _check_all(self) -> None:
         for name, value in self.params.items():
@@ -177,6 +139,7 @@ class ControllerBlock(Block):
         self._apply_params()
 
     def set_parameter(self, name: str, value: Any) -> None:
+        self.check_parameter(name, value)
         self._check(name, value)
         super().set_parameter(name, value)
         self._apply_params()
@@ -209,8 +172,8 @@ class ControllerBlock(Block):
     # -- run -----------------------------------------------------------------------------------
     def start(self, u: np.ndarray) -> np.ndarray:
         """Bumpless start: the reference model begins at the initial estimate, no force yet."""
-        u = self._full_inputs(np.asarray(u, dtype=float), strict=False)
-        if u is not None and np.isfinite(u).all():
+        u = np.asarray(u, dtype=float)
+        if u.shape == (len(self.inp),) and np.isfinite(u).all():
             self._start_law(u)
             self._started = True
         return self.output()
@@ -218,21 +181,12 @@ class ControllerBlock(Block):
     def output(self) -> np.ndarray:
         return self._y.copy()
 
-    def _full_inputs(self, u: np.ndarray, strict: bool = True) -> np.ndarray | None:
-        """Inputs aligned with the interface; the pre-joystick prefix is accepted (start values added)."""
-        n = len(self._in_names)
-        if u.shape == (n,):
-            return u
-        if u.shape == (self._n_legacy_in,):
-            return np.concatenate([u, self._in_start[self._n_legacy_in:]])
-        if strict:
-            raise ValueError(f"controller: expected {n} inputs, got {u.shape}")
-        return None
-
     def step(self, t: float, h: float, u: np.ndarray) -> np.ndarray:
-        u = self._full_inputs(np.asarray(u, dtype=float))
+        u = np.asarray(u, dtype=float)
+        if u.shape != (len(self.inp),):
+            raise ValueError(f"controller: expected {len(self.inp)} inputs, got {u.shape}")
         if not np.isfinite(u).all():
-            bad = [n for n, v in zip(self._in_names, u.tolist(), strict=True) if not math.isfinite(v)]
+            bad = [n for n, v in zip(self.inp.names, u.tolist(), strict=True) if not math.isfinite(v)]
             raise ValueError(f"controller: input '{bad[0]}' is not finite")
         key = self._mode_key()
         switched = key != self._active
@@ -245,7 +199,7 @@ class ControllerBlock(Block):
     def _blend(self, switched: bool, h: float, tau_new: np.ndarray) -> None:
         """Bumpless transfer: at a switch, offset = last output - new law's output, then it decays."""
         if switched and self._stepped and self._blend_time > 0.0:
-            self._offset = self._y[: self.dof] - tau_new
+            self._offset = self._y[self._o_tau] - tau_new
         elif self._blend_time > 0.0 and self._offset.any():
             self._offset *= math.exp(-h / self._blend_time)
             if np.abs(self._offset).max() < 1e-9:  # gone: skip the arithmetic from now on

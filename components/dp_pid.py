@@ -112,7 +112,6 @@ GUIDED_NAMES = ("north", "east", "yaw")  # come from the guidance in waypoint mo
 # Joystick axes: (axis, body tau, the NED DOF that must be free for the axis to act).
 JOY_AXES = (("surge", "X", "north"), ("sway", "Y", "east"), ("heave", "Z", "down"), ("yaw", "N", "yaw"))
 JOY_DEFAULT_FRACTION = 0.5  # full stick = half the pure-DOF capability: headroom for roll/pitch hold
-N_GUIDANCE_OUT = 4  # cross_track_error, corner_error, leg, speed_d
 
 
 class ModeTables(NamedTuple):
@@ -156,8 +155,8 @@ class DPPidController(ControllerBlock):
 
     @classmethod
     def interface(cls, vessel: VesselSpec) -> Interface:
-        # Long because it lists every signal and parameter in FMU order (appended groups keep the
-        # order of earlier versions); there is no logic to split out.
+        # Long because it lists every signal and parameter with its metadata (the FMU variables and
+        # the checks of Block); there is no logic to split out.
         eta, nu, tn = vessel.eta_names, vessel.nu_names, vessel.tau_names
         axes = _tables(vessel).joy_axes
         inputs = [Signal(f"{n}_hat", state_unit(n), f"estimated {n}") for n in eta + nu]
@@ -195,7 +194,6 @@ class DPPidController(ControllerBlock):
             params.append(Signal(f"tau_max_{t}", FORCE_UNIT[t], f"saturation of tau_{t} for anti-windup "
                                  "(default: pure-DOF thruster capability through the allocator)",
                                  min=0.0, start=float(round(c, 3)), tunable=True))
-        # -- appended with the operating modes (earlier parameters keep their order) --
         params.append(Signal("mode", "", "0 = DP, 1 = waypoint tracking, 2 = auto-depth, 3 = auto-heading, "
                              "4 = joystick, 5 = auto-depth + auto-heading (roll/pitch held in all)",
                              min=0, max=5, start=0, type="integer", tunable=True))
@@ -210,27 +208,27 @@ class DPPidController(ControllerBlock):
             Signal("lm_lines", "", "lawnmower: number of lines", min=1, start=6, type="integer",
                    tunable=True),
             Signal("lm_spacing", "m", "lawnmower: distance between lines", min=0.0, start=4.0, tunable=True),
-            Signal("lm_length", "m", "lawnmower: length of a line", min=0.0, start=20.0, tunable=True),
+            Signal("lm_length", "m", "lawnmower: length of a line", min=0.0, min_open=True, start=20.0,
+                   tunable=True),
             Signal("lm_heading", "rad", "lawnmower: direction of the first line", start=0.0, tunable=True),
             Signal("lm_north", "m", "lawnmower: start of the first line, north", start=0.0, tunable=True),
             Signal("lm_east", "m", "lawnmower: start of the first line, east", start=0.0, tunable=True),
             Signal("lm_side", "", "lawnmower: 1 = next line to starboard, -1 = to port", min=-1, max=1,
-                   start=1, type="integer", tunable=True),
-            Signal("guide_speed", "m/s", "guidance: speed limit of the reference point", min=0.0, start=0.3,
-                   tunable=True),
+                   start=1, type="integer", tunable=True, choices=(-1, 1)),
+            Signal("guide_speed", "m/s", "guidance: speed limit of the reference point", min=0.0,
+                   min_open=True, start=0.3, tunable=True),
             Signal("guide_accel", "m/s^2", "guidance: acceleration limit of the reference point", min=0.0,
-                   start=0.05, tunable=True),
+                   min_open=True, start=0.05, tunable=True),
             Signal("guide_acceptance", "m", "guidance: radius of the circle of acceptance around a waypoint",
-                   min=0.0, start=0.5, tunable=True),
+                   min=0.0, min_open=True, start=0.5, tunable=True),
             Signal("guide_yaw_mode", "", "guidance: 0 = heading along the leg, 1 = heading from yaw_ref",
                    min=0, max=1, start=0, type="integer", tunable=True),
-            Signal("guide_yaw_rate", "rad/s", "guidance: heading rate limit at corners", min=0.0, start=0.2,
-                   tunable=True),
+            Signal("guide_yaw_rate", "rad/s", "guidance: heading rate limit at corners", min=0.0,
+                   min_open=True, start=0.2, tunable=True),
             Signal("ff_gain", "", "waypoint mode: weight of the model feed-forward "
                    "M nu_d_dot + C nu_d + D nu_d (0 = PID only)", min=0.0, max=1.0, start=1.0, tunable=True),
             Signal("mode_blend_time", "s", "bumpless switching: time constant of the decaying output offset "
                    "(0 = none)", min=0.0, start=2.0, tunable=True),
-            # -- appended with the registry of named variants --
             cls._variant_param(vessel),
         ]
         return Interface(inputs=inputs, outputs=outputs, parameters=params)
@@ -239,13 +237,18 @@ class DPPidController(ControllerBlock):
     def __init__(self, vessel: VesselSpec, params: dict[str, Any]) -> None:
         super().__init__(vessel, params)
         d = vessel.dof
-        self._setup(vessel, n_ref=d, ref_angles=[n in ("roll", "pitch", "yaw") for n in vessel.eta_names],
-                    n_legacy_in=3 * d)
+        self._setup(vessel, n_ref=d, ref_angles=[n in ("roll", "pitch", "yaw") for n in vessel.eta_names])
         self._tab = _tables(vessel)
+        eta, inp, out = vessel.eta_names, self.inp, self.out
+        self._in_eta = inp.at(f"{n}_hat" for n in eta)
+        self._in_nu = inp.at(f"{n}_hat" for n in vessel.nu_names)
+        self._in_ref = inp.at(f"{n}_ref" for n in eta)
+        self._in_joy = inp.at(f"joy_{a}" for a, _, _ in self._tab.joy_axes)
+        self._o_eta_d = out.at(f"{n}_d" for n in eta)
+        self._o_guid = out.at(["cross_track_error", "corner_error", "leg", "speed_d"])
+        self._o_corner = out["corner_error"]
         self._guided = list(self._tab.guided)
         self._yaw = vessel.eta_names.index("yaw")
-        self._i_joy = 3 * d  # first joystick input
-        self._i_guid = 2 * d  # first guidance output
         self._coriolis = vessel.coriolis != "none"
         self._guidance_name = vessel.gnc.guidance if vessel.gnc is not None else "none"
         self.guidance: PathGuidance | None = None
@@ -281,9 +284,9 @@ class DPPidController(ControllerBlock):
         return (self.mode,)
 
     def _start_law(self, u: np.ndarray) -> None:
-        d = self.dof
-        self.ref.reset(u[:d])
-        self._y[d : 2 * d] = u[:d]
+        eta = u[self._in_eta]
+        self.ref.reset(eta)
+        self._y[self._o_eta_d] = eta
 
     # -- modes ---------------------------------------------------------------------------------
     def _start_guidance(self) -> None:
@@ -352,9 +355,8 @@ class DPPidController(ControllerBlock):
 
     # -- the law -------------------------------------------------------------------------------
     def _step_law(self, h: float, u: np.ndarray, switched: bool) -> np.ndarray:
-        d = self.dof
         tab = self._tab
-        eta, nu, eta_ref = u[:d], u[d : 2 * d], u[2 * d : 3 * d]
+        eta, nu, eta_ref = u[self._in_eta], u[self._in_nu], u[self._in_ref]
         if not self._started:
             self.ref.reset(eta)  # bumpless start from the current estimate
             self._started = True
@@ -372,7 +374,6 @@ class DPPidController(ControllerBlock):
         eta_dot = Jm @ nu
         eta_d, eta_d_dot, eta_d_dd = self.ref.step(h, eta_ref)
         y = np.zeros(self._n_out)
-        k = self._i_guid
         if mode == MODE_WAYPOINT or any_free:
             eta_d, eta_d_dot, eta_d_dd = eta_d.copy(), eta_d_dot.copy(), eta_d_dd.copy()
             if mode == MODE_WAYPOINT and self.guidance is not None:
@@ -381,13 +382,13 @@ class DPPidController(ControllerBlock):
                 eta_d[gi] = [g.pos[0], g.pos[1], g.yaw]
                 eta_d_dot[gi] = [g.vel[0], g.vel[1], g.yaw_rate]
                 eta_d_dd[gi] = [g.acc[0], g.acc[1], g.yaw_acc]
-                y[k : k + N_GUIDANCE_OUT] = [g.cross_track, g.corner_error, g.leg, g.speed]
+                y[self._o_guid] = [g.cross_track, g.corner_error, g.leg, g.speed]
             if any_free:
                 # A free DOF's reference follows the vessel: engaging it later starts from here.
                 eta_d[free], eta_d_dot[free], eta_d_dd[free] = eta[free], eta_dot[free], 0.0
             self.ref.x, self.ref.v, self.ref.a = eta_d.copy(), eta_d_dot.copy(), eta_d_dd.copy()
         if self.guidance is not None and mode != MODE_WAYPOINT:
-            y[k + 1] = self.guidance.corner_error
+            y[self._o_corner] = self.guidance.corner_error
         e = eta - eta_d
         ai = self._angle_idx
         e[ai] = (e[ai] + math.pi) % (2.0 * math.pi) - math.pi
@@ -396,8 +397,7 @@ class DPPidController(ControllerBlock):
         if mode == MODE_WAYPOINT and self._ff_gain > 0.0:
             tau_new += self._ff_gain * self._feedforward(eta, eta_d_dot, eta_d_dd)
         if any_free:
-            j0 = self._i_joy
-            joy = np.clip(u[j0 : j0 + len(tab.joy_tau)], -1.0, 1.0)
+            joy = np.clip(u[self._in_joy], -1.0, 1.0)
             for kk, (ti, di) in enumerate(zip(tab.joy_tau, tab.joy_dof, strict=True)):
                 if free[di]:
                     tau_new[ti] += joy[kk] * self._joy_max[kk]
@@ -405,7 +405,7 @@ class DPPidController(ControllerBlock):
         tau_unsat = tau_new + self._offset if self._offset.any() else tau_new
         tau = np.minimum(np.maximum(tau_unsat, -self.tau_max), self.tau_max)
         self._integrate(h, e, tau_unsat, tau, Jt)  # e = 0 on free DOFs: their integral is held
-        self._ref_seen = u[2 * d : 3 * d].copy()
-        y[:d] = tau
-        y[d : 2 * d] = eta_d
+        self._ref_seen = u[self._in_ref].copy()
+        y[self._o_tau] = tau
+        y[self._o_eta_d] = eta_d
         return y

@@ -86,7 +86,6 @@ class HeadingAutopilot(ControllerBlock):
                    min=0, max=1, start=0, type="integer", tunable=True),
             Signal("tau_max_N", "N.m", "yaw moment saturation for anti-windup (default: both screws at "
                    "n_max in opposition)", min=0.0, start=float(round(cap[i_n], 3)), tunable=True),
-            # -- appended: backstepping, land mode, joystick (earlier parameters keep their order) --
             Signal("autopilot", "", "0 = PID with yaw-rate feed-forward, 1 = linear backstepping",
                    min=0, max=1, start=0, type="integer", tunable=True),
             Signal("bs_k1", "1/s", "backstepping gain k1", min=0.0, start=float(tun["bs_k1"]), tunable=True),
@@ -109,7 +108,6 @@ class HeadingAutopilot(ControllerBlock):
                    min=0.0, start=float(np.max(vessel.thrusters.n_max)), tunable=True),
             Signal("mode_blend_time", "s", "bumpless switching: time constant of the decaying output offset "
                    "(0 = none)", min=0.0, start=1.0, tunable=True),
-            # -- appended with the registry of named variants --
             cls._variant_param(vessel),
         ]
         return Interface(inputs=inputs, outputs=outputs, parameters=params)
@@ -117,13 +115,18 @@ class HeadingAutopilot(ControllerBlock):
     # -- set-up --------------------------------------------------------------------------------
     def __init__(self, vessel: VesselSpec, params: dict[str, Any]) -> None:
         super().__init__(vessel, params)
-        self._setup(vessel, n_ref=1, ref_angles=[True], n_legacy_in=2 * vessel.dof + 2)
-        names = self._in_names
+        self._setup(vessel, n_ref=1, ref_angles=[True])
         used = ("yaw_hat", "u_hat", "v_hat", "r_hat", "yaw_ref", "surge_force_ref", "joy_x", "joy_y",
                 "joy_slider", "joy_buttons")
-        self._iu = [names.index(n) for n in used]
+        self._iu = [self.inp[n] for n in used]
+        self._i_yaw_ref = self.inp["yaw_ref"]
+        out = self.out
+        self._o_yaw_d = out["yaw_d"]
+        self._o_ref = out.at(["yaw_d", "r_d", "turn_radius"])
+        self._o_land = out.at(["n_joy_1", "n_joy_2", "sideways"])
         tn, nu = vessel.tau_names, vessel.nu_names
-        self._iX, self._iY, self._iN = tn.index("X"), tn.index("Y"), tn.index("N")
+        self._iX, self._iY, self._iN = tn.index("X"), tn.index("Y"), tn.index("N")  # in tau (d values)
+        self._oY, self._oN = out["tau_Y"], out["tau_N"]
         ir = nu.index("r")
         self._m66 = float(self._M[ir, ir])  # yaw inertia I_z + A66 (erratum: not I_z - A66)
         self._dl66 = float(vessel.D_L[ir, ir])
@@ -157,7 +160,7 @@ class HeadingAutopilot(ControllerBlock):
     def _start_law(self, u: np.ndarray) -> None:
         yaw = u[self._iu[0]]
         self.ref.reset([yaw])
-        self._y[self.dof] = yaw
+        self._y[self._o_yaw_d] = yaw
         self._joy_heading = float(yaw)
 
     def land_screws(self, x: float, y: float, slider: float) -> tuple[float, float]:
@@ -190,7 +193,7 @@ class HeadingAutopilot(ControllerBlock):
             e = np.zeros(1)
             yaw_d, rd = float(yaw), float(r)
             tau_new[self._iX], tau_new[self._iN] = tau_x, tau_n
-            out[d + 3 : d + 6] = [n1, n2, float(buttons & LAND_SIDEWAYS_BIT)]
+            out[self._o_land] = [n1, n2, float(buttons & LAND_SIDEWAYS_BIT)]
         else:  # water: heading autopilot, open-loop surge
             if switched and self._stepped and self._active[0] == 1 and not self.joystick:
                 # Back from land: hold the heading (course) it glides to until yaw_ref changes.
@@ -234,9 +237,9 @@ class HeadingAutopilot(ControllerBlock):
             self._integrate(h, e, np.array([tau_unsat[iN]]), np.array([tau_n_sat]), None)
         speed = math.hypot(uu, vv)
         radius = speed / abs(r) if abs(r) > speed / TURN_RADIUS_MAX else TURN_RADIUS_MAX
-        out[:d] = tau_unsat
-        out[self._iY] = 0.0  # no sway demand: two fixed screws cannot make it
-        out[iN] = tau_n_sat
-        out[d : d + 3] = [yaw_d, rd, radius]
-        self._ref_seen = np.array([u[self._iu[4]]])
+        out[self._o_tau] = tau_unsat
+        out[self._oY] = 0.0  # no sway demand: two fixed screws cannot make it
+        out[self._oN] = tau_n_sat
+        out[self._o_ref] = [yaw_d, rd, radius]
+        self._ref_seen = np.array([u[self._i_yaw_ref]])
         return out

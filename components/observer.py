@@ -122,7 +122,6 @@ class ObserverBlock(Block):
         outputs += [Signal(f"bias_{t}_hat", FORCE_UNIT[t], f"estimated bias force {t} (body)")
                     for t in vessel.tau_names]
         outputs.append(Signal("position_std", "m", "sqrt(var north + var east) of the estimate"))
-        # Appended (issue 5): position-fix gating and dead reckoning.
         outputs += [
             Signal("pos_fixes_rejected", "", "position fixes rejected by a gate so far"),
             Signal("dead_reckoning", "", "1 while no position fix was accepted for more than dr_timeout"),
@@ -136,18 +135,17 @@ class ObserverBlock(Block):
             Signal("q_bias", "m/s^2/sqrt(s)", "random-walk intensity of the bias, as an acceleration "
                    "(times M_jj gives N/sqrt(s))", min=0.0, start=0.002, tunable=True),
             Signal("bias_time_constant", "s", "T_b of the bias model b_dot = -b/T_b + w", min=0.0,
-                   start=500.0, tunable=True),
+                   min_open=True, start=500.0, tunable=True),
             Signal("r_scale", "", "measurement variance = r_scale * noise_std^2 from the vessel file",
-                   min=0.0, start=1.0, tunable=True),
+                   min=0.0, min_open=True, start=1.0, tunable=True),
             Signal("innovation_gate", "", "reject a sample whose normalised innovation squared exceeds "
                    "this (chi-square; 0 = accept all)", min=0.0, start=0.0, tunable=True),
-            # Appended (issue 5).
             Signal("gate_probability", "", "chi-square gate on position fixes: accept a fix whose "
                    "NIS is below the chi2_m quantile at this probability (e.g. 0.999; 0 = off)",
                    min=0.0, max=0.999999, start=0.0, tunable=True),
             Signal("gate_max_rejections", "", "after this many consecutive rejected position fixes "
-                   "the next failing one resets the position (0 = never)", min=0.0, start=5.0,
-                   tunable=True),
+                   "the next failing one resets the position (0 = never)", min=0, start=5,
+                   type="integer", tunable=True),
             Signal("dr_timeout", "s", "dead reckoning is declared after this long without an "
                    "accepted position fix", min=0.0, start=3.0, tunable=True),
             Signal("wave_filter", "", "1 = estimate first-order wave motion separately and give the "
@@ -165,10 +163,6 @@ class ObserverBlock(Block):
 
     def __init__(self, vessel: VesselSpec, params: dict[str, Any]) -> None:
         super().__init__(vessel, params)
-        for name, value in self.params.items():
-            self._check(name, value)
-        iface = self.interface(vessel)
-        self._in_names = iface.input_names()
         d = self.d = vessel.dof
         # Wave filter states: xi and zeta for each translational position (north, east[, down]).
         self._wave_on = float(self.params.get("wave_filter", 0.0)) > 0.0
@@ -197,10 +191,9 @@ class ObserverBlock(Block):
         self._angle_list = [i for i, nm in enumerate(vessel.eta_names) if nm in ANGLE_NAMES]
 
         # Sensors: where their inputs are, which states they measure.
-        self._sensors: list[tuple[slice, int, _Channels]] = []  # (meas inputs, count input, channels)
-        pos = 0
+        inp = self.inp
+        self._sensors: list[tuple[slice | list[int], int, _Channels]] = []  # (meas inputs, count, channels)
         for s in vessel.sensors:
-            k = len(s.channels)
             ch = _Channels.build(
                 np.array([state_names.index(c) for c in s.channels]),
                 np.array([c in ANGLE_NAMES for c in s.channels]),
@@ -209,10 +202,14 @@ class ObserverBlock(Block):
                 pos_fix="north" in s.channels and "east" in s.channels,
                 wave=any(state_names.index(c) in self._wave_map for c in s.channels),
             )
-            self._sensors.append((slice(pos, pos + k), pos + k, ch))
-            pos += k + 1
-        self._tau_slice = slice(pos, pos + d)
-        self._n_in = pos + d
+            self._sensors.append((inp.at(f"meas_{c}" for c in s.channels), inp[f"{s.name}_count"], ch))
+        self._tau_in = inp.at(f"tau_alloc_{t}" for t in vessel.tau_names)
+        o = self.out
+        self._n_out = len(o)
+        self._o_state = o.at([f"{n}_hat" for n in vessel.eta_names + vessel.nu_names]
+                             + [f"bias_{t}_hat" for t in vessel.tau_names])
+        self._o_std, self._o_rej, self._o_dr = o["position_std"], o["pos_fixes_rejected"], o["dead_reckoning"]
+        self._o_wave = o.at(f"wave_{vessel.eta_names[i]}_hat" for i in self._wdof)
 
         # Constant parts of the Jacobian A = df/dx.
         self._A = np.zeros((n, n))
@@ -241,24 +238,7 @@ class ObserverBlock(Block):
         return np.concatenate([np.full(self.nw, var), np.full(self.nw, w * w * var)])
 
     # -- parameters ----------------------------------------------------------------------------
-    def _check(self, name: str, value: Any) -> None:
-        try:
-            v = float(value)
-        except (TypeError, ValueError):
-            raise ValueError(f"observer: parameter '{name}' must be a number, got {value!r}") from None
-        if not math.isfinite(v):
-            raise ValueError(f"observer: parameter '{name}' must be finite, got {value!r}")
-        if name in ("bias_time_constant", "r_scale") and v <= 0.0:
-            raise ValueError(f"observer: parameter '{name}' must be positive, got {value!r}")
-        if v < 0.0:
-            raise ValueError(f"observer: parameter '{name}' must be >= 0, got {value!r}")
-        if name == "gate_probability" and v >= 1.0:
-            raise ValueError(f"observer: parameter '{name}' must be < 1, got {value!r}")
-        if name == "gate_max_rejections" and not v.is_integer():
-            raise ValueError(f"observer: parameter '{name}' must be a whole number, got {value!r}")
-
     def set_parameter(self, name: str, value: Any) -> None:
-        self._check(name, value)
         super().set_parameter(name, value)
         self._apply_params()
 
@@ -557,17 +537,20 @@ class ObserverBlock(Block):
     def output(self) -> np.ndarray:
         d = self.d
         P = self.P
-        dr = 1.0 if self._since_fix > self._dr_timeout else 0.0
-        xi = self.x[3 * d : 3 * d + self.nw] if self.nw else np.zeros(len(self._wdof))
-        return np.concatenate([self.x[: 3 * d], [math.sqrt(P[0, 0] + P[1, 1]), float(self.pos_rejected), dr],
-                               xi])
+        y = np.empty(self._n_out)
+        y[self._o_state] = self.x[: 3 * d]
+        y[self._o_std] = math.sqrt(P[0, 0] + P[1, 1])
+        y[self._o_rej] = self.pos_rejected
+        y[self._o_dr] = 1.0 if self._since_fix > self._dr_timeout else 0.0
+        y[self._o_wave] = self.x[3 * d : 3 * d + self.nw] if self.nw else 0.0
+        return y
 
     def _checked(self, u: np.ndarray) -> np.ndarray:
         u = np.asarray(u, dtype=float)
-        if u.shape != (self._n_in,):
-            raise ValueError(f"observer: expected {self._n_in} inputs, got {u.shape}")
+        if u.shape != (len(self.inp),):
+            raise ValueError(f"observer: expected {len(self.inp)} inputs, got {u.shape}")
         if not np.isfinite(u).all():
-            bad = [n for n, v in zip(self._in_names, u.tolist(), strict=True) if not math.isfinite(v)]
+            bad = [n for n, v in zip(self.inp.names, u.tolist(), strict=True) if not math.isfinite(v)]
             raise ValueError(f"observer: input '{bad[0]}' is not finite")
         return u
 
@@ -579,7 +562,7 @@ class ObserverBlock(Block):
     def step(self, t: float, h: float, u: np.ndarray) -> np.ndarray:
         u = self._checked(u)
         self._since_fix += h
-        self.predict(h, u[self._tau_slice])
+        self.predict(h, u[self._tau_in])
         self._update_sensors(u)
         return self.output()
 

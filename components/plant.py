@@ -14,13 +14,12 @@ from __future__ import annotations
 
 import copy
 import math
-import numbers
 from typing import Any
 
 import numpy as np
 
 from .allocation import FORCE_UNIT
-from .block import Block, Interface, Signal, full_params
+from .block import Block, Interface, Signal
 from .dynamics import J, wrap_angle
 from .environment import GaussMarkovCurrent
 from .sensors import SensorSuite, mag_heading_error
@@ -42,8 +41,8 @@ class PlantBlock(Block):
 
     @classmethod
     def interface(cls, vessel: VesselSpec) -> Interface:
-        # Long because it lists every signal and parameter in FMU order (appended groups keep the
-        # order of earlier versions); there is no logic to split out.
+        # Long because it lists every signal and parameter with its metadata (the FMU variables and
+        # the checks of Block); there is no logic to split out.
         th = vessel.thrusters
         inputs = [
             Signal(f"n_cmd_{i + 1}", "rev/s", f"shaft speed command of thruster {i + 1} '{name}'",
@@ -64,7 +63,6 @@ class PlantBlock(Block):
             Signal("course", "rad", "true course over ground (heading when nearly at rest)"),
             Signal("sog", "m/s", "true speed over ground (horizontal)"),
         ]
-        # Environment and fault outputs (appended: the earlier outputs keep their order).
         outputs.append(Signal("wave_elevation", "m", "wave elevation above the vessel's horizontal position"))
         outputs += [Signal(f"tau_wave_{t}", FORCE_UNIT[t], f"first-order wave force {t} (body frame)")
                     for t in vessel.tau_names]
@@ -89,18 +87,19 @@ class PlantBlock(Block):
                    for n in vessel.eta_names + vessel.nu_names]
         params.append(Signal("substep", "s", "max RK4 step; a co-simulation step h is split into "
                              "ceil(h / substep) equal RK4 steps", min=_MIN_SUBSTEP, start=0.01))
-        # Thruster failures (appended: the earlier parameters keep their order). A failed drive
-        # ignores its command; the shaft still follows the first-order lag to 0 or to the value.
+        # A failed drive ignores its command; the shaft still follows the first-order lag to 0 or
+        # to the value.
         for i, name in enumerate(th.names):
             params.append(Signal(f"fail_mode_{i + 1}", "", f"thruster {i + 1} '{name}': 0 = ok, 1 = failed, "
                                  "stuck at zero speed, 2 = failed, stuck at fail_value", min=0,
-                                 max=len(FAIL_MODES) - 1, start=0, type="integer", tunable=True))
+                                 max=len(FAIL_MODES) - 1, start=0, type="integer", tunable=True,
+                                 choices=tuple(range(len(FAIL_MODES)))))
         for i, name in enumerate(th.names):
             n_max = float(th.n_max[i])
             params.append(Signal(f"fail_value_{i + 1}", "rev/s", f"thruster {i + 1} '{name}': shaft speed "
                                  "it is stuck at when fail_mode = 2", min=-n_max, max=n_max, start=0.0,
                                  tunable=True))
-        # Environment and sensor faults (appended; see components/waves.py, environment.py, sensors.py).
+        # Environment and sensor faults (components/waves.py, environment.py, sensors.py).
         params += [
             Signal("wave_hs", "m", "significant wave height H_s of the JONSWAP sea (0 = no waves)",
                    min=0.0, max=20.0, start=0.0, tunable=True),
@@ -128,35 +127,28 @@ class PlantBlock(Block):
         if "land" in vessel.extra:  # the vessel file gives land kinematics (the amphibious AMV)
             params.append(Signal("land_mode", "", "0 = water, 1 = land (screws roll on the ground), "
                                  "2 = land sideways (button held)", min=0, max=2, start=0,
-                                 type="integer", tunable=True))
+                                 type="integer", tunable=True, choices=(0, 1, 2)))
         return Interface(inputs=inputs, outputs=outputs, parameters=params)
 
     def __init__(self, vessel: VesselSpec, params: dict[str, Any]) -> None:
-        iface = self.interface(vessel)
-        super().__init__(vessel, full_params(iface, params))
+        super().__init__(vessel, params)
         p = self.params
-        seed = p["seed"]
-        if isinstance(seed, bool) or not isinstance(seed, numbers.Real) or not float(seed).is_integer():
-            raise ValueError(f"seed must be an integer, got {seed!r}")
-        if seed < 0:
-            raise ValueError(f"seed must be >= 0, got {seed}")
-        self._seed = int(seed)
-        self._noise_scale = self._real("noise_scale", lo=0.0)
-        self._substep = self._real("substep", lo=_MIN_SUBSTEP)
+        self._seed = int(p["seed"])
+        self._noise_scale = float(p["noise_scale"])
+        self._substep = float(p["substep"])
         self._current = GaussMarkovCurrent(
-            self._real("current_speed", lo=0.0), self._real("current_direction"),
-            variation=self._real("current_variation", lo=0.0),
-            time_constant=self._real("current_time_constant", lo=1e-3),
+            float(p["current_speed"]), float(p["current_direction"]),
+            variation=float(p["current_variation"]), time_constant=float(p["current_time_constant"]),
             rng=np.random.default_rng(np.random.SeedSequence([self._seed, CURRENT_STREAM])),
         )
-        n_waves = self._integer("wave_components", lo=1)
-        field = WaveField(self._real("wave_hs", lo=0.0), self._real("wave_tp", lo=1e-3),
-                          self._real("wave_direction"), self._real("wave_gamma"), n_waves,
+        field = WaveField(float(p["wave_hs"]), float(p["wave_tp"]), float(p["wave_direction"]),
+                          float(p["wave_gamma"]), int(p["wave_components"]),
                           np.random.default_rng(np.random.SeedSequence([self._seed, WAVE_STREAM])))
         self._waves = WaveLoad(vessel, field)
         self._t = 0.0
         d = vessel.dof
-        x0 = [self._real(f"{n}_0") for n in vessel.eta_names + vessel.nu_names]
+        states = vessel.eta_names + vessel.nu_names
+        x0 = [float(p[f"{n}_0"]) for n in states]
 
         self._model = VesselModel(vessel)
         self._land = None
@@ -165,59 +157,39 @@ class PlantBlock(Block):
             from .amv_land import LandModel
 
             self._land = LandModel(vessel)
-            self._land_mode = self._check_land_mode(self.params["land_mode"])
-        self._input_names = iface.input_names()
+            self._land_mode = int(self.params["land_mode"])
+        # Where each group of outputs goes, looked up by name once (see Block, Slots).
+        th = range(vessel.thrusters.count)
+        o = self.out
+        self._n_out = len(o)
+        self._o_x = o.at(states + [f"n_{i + 1}" for i in th])
+        self._o_thrust = o.at([f"thrust_{i + 1}" for i in th])
+        self._o_sensors = o.at(SensorSuite.output_names(vessel.sensors))
+        self._o_course_sog = o.at(["course", "sog"])
+        self._o_env = o.at(["wave_elevation", *(f"tau_wave_{t}" for t in vessel.tau_names), "current_north",
+                            "current_east", "mag_heading_error", "pos_fix_outliers", "pos_fix_dropout"])
         self._x = self._model.initial_state(np.array(x0[:d]), np.array(x0[d:]))
         for i in self._model.angle_index:
             self._x[i] = wrap_angle(self._x[i])
-        self._sensors = SensorSuite(vessel.sensors, vessel.eta_names + vessel.nu_names, self._seed,
-                                    self._noise_scale)
-        self._sensors.set_mag_fault(self._real("mag_fault_amplitude"))
+        self._sensors = SensorSuite(vessel.sensors, states, self._seed, self._noise_scale)
+        self._sensors.set_mag_fault(float(p["mag_fault_amplitude"]))
         self._set_pos_faults()
         self._sensors.initialise(self._x[: 2 * d])
         self._sensor_out: list[float] = []
         self._stuck: list[tuple[int, float]] = []  # (thruster index, speed command it is stuck at)
-        for i in range(vessel.thrusters.count):
-            self._check_failure(f"fail_mode_{i + 1}", self.params[f"fail_mode_{i + 1}"])
-            self._check_failure(f"fail_value_{i + 1}", self.params[f"fail_value_{i + 1}"])
         self._apply_failures()
         self._y = self._outputs()
 
-    def _real(self, name: str, lo: float | None = None) -> float:
-        """A finite real parameter, optionally >= lo; ValueError names it."""
-        v = self.params[name]
-        try:
-            f = float(v)
-        except (TypeError, ValueError):
-            raise ValueError(f"{name} must be a number, got {v!r}") from None
-        if not math.isfinite(f):
-            raise ValueError(f"{name} must be finite, got {v!r}")
-        if lo is not None and f < lo:
-            raise ValueError(f"{name} must be >= {lo:g}, got {v!r}")
-        return f
-
-    def _integer(self, name: str, lo: int) -> int:
-        """An integer parameter >= lo; ValueError names it."""
-        v = self.params[name]
-        if isinstance(v, bool) or not isinstance(v, numbers.Real) or not float(v).is_integer():
-            raise ValueError(f"{name} must be an integer, got {v!r}")
-        if v < lo:
-            raise ValueError(f"{name} must be >= {lo}, got {v}")
-        return int(v)
-
     def _set_pos_faults(self) -> None:
-        rate = self._real("usbl_outlier_rate", lo=0.0)
-        if rate > 1.0:
-            raise ValueError(f"usbl_outlier_rate must be <= 1, got {self.params['usbl_outlier_rate']!r}")
-        self._sensors.set_pos_faults(rate, self._real("usbl_outlier_size", lo=0.0),
-                                     self._real("usbl_dropout_start", lo=0.0),
-                                     self._real("usbl_dropout_length", lo=0.0))
+        p = self.params
+        self._sensors.set_pos_faults(float(p["usbl_outlier_rate"]), float(p["usbl_outlier_size"]),
+                                     float(p["usbl_dropout_start"]), float(p["usbl_dropout_length"]))
 
     def __deepcopy__(self, memo: dict) -> PlantBlock:
         """Copy the state; share the vessel spec and model, which never change after __init__."""
         new = object.__new__(type(self))
         memo[id(self)] = new
-        shared = {"vessel", "_model", "_input_names"}
+        shared = {"vessel", "_model", "iface", "inp", "out"}
         for k, v in self.__dict__.items():
             new.__dict__[k] = v if k in shared else copy.deepcopy(v, memo)
         return new
@@ -225,9 +197,14 @@ class PlantBlock(Block):
     def _outputs(self, sensors_changed: bool = True) -> np.ndarray:
         if sensors_changed:
             self._sensor_out = self._sensors.output()
-        x = self._x.tolist()
-        thrust = self._model.thrust_list(x[2 * self.vessel.dof :])
-        return np.array(x + thrust + self._sensor_out + self._course_sog() + self._env_out())
+        x = self._x
+        y = np.empty(self._n_out)
+        y[self._o_x] = x
+        y[self._o_thrust] = self._model.thrust_list(x[2 * self.vessel.dof :].tolist())
+        y[self._o_sensors] = self._sensor_out
+        y[self._o_course_sog] = self._course_sog()
+        y[self._o_env] = self._env_out()
+        return y
 
     def _env_out(self) -> list[float]:
         """wave_elevation, tau_wave_*, current_north/east, mag_heading_error, outliers, dropout."""
@@ -259,7 +236,7 @@ class PlantBlock(Block):
         if not (math.isfinite(h) and h > 0.0):
             raise ValueError(f"step size h must be finite and > 0, got {h!r}")
         ul = u.tolist() if isinstance(u, np.ndarray) else [float(c) for c in u]
-        names = self._input_names
+        names = self.inp.names
         if len(ul) != len(names) or (ul and isinstance(ul[0], list)):
             raise ValueError(f"expected {len(names)} inputs {names}, got {np.shape(u)}")
         if not math.isfinite(sum(ul)):  # one check on the hot path; inf - inf and nan propagate
@@ -291,20 +268,6 @@ class PlantBlock(Block):
         return self._y.copy()
 
     # -- thruster failures -----------------------------------------------------------------------
-    def _check_failure(self, name: str, value: Any) -> None:
-        """ValueError naming the parameter unless it is a valid fail_mode_i / fail_value_i."""
-        try:
-            f = float(value)
-        except (TypeError, ValueError):
-            raise ValueError(f"{name} must be a number, got {value!r}") from None
-        i = int(name.rsplit("_", 1)[1]) - 1
-        if name.startswith("fail_mode_") and f not in range(len(FAIL_MODES)):
-            modes = ", ".join(f"{k} = {m}" for k, m in enumerate(FAIL_MODES))
-            raise ValueError(f"{name} must be one of {modes}; got {value!r}")
-        n_max = float(self.vessel.thrusters.n_max[i])
-        if name.startswith("fail_value_") and not (math.isfinite(f) and abs(f) <= n_max):
-            raise ValueError(f"{name} must be within +-{n_max:g} rev/s, got {value!r}")
-
     def _apply_failures(self) -> None:
         stuck = []
         for i in range(self.vessel.thrusters.count):
@@ -320,64 +283,23 @@ class PlantBlock(Block):
         """0-based indices of the thrusters whose drive has failed."""
         return [i for i, _ in self._stuck]
 
-    @staticmethod
-    def _check_land_mode(value: Any) -> int:
-        if isinstance(value, bool) or not float(value).is_integer() or int(value) not in (0, 1, 2):
-            raise ValueError(f"land_mode must be 0 (water), 1 (land) or 2 (land, sideways), got {value!r}")
-        return int(value)
-
     def set_parameter(self, name: str, value: Any) -> None:
-        if name == "land_mode" and self._land is not None:
-            self._land_mode = self._check_land_mode(value)
-            self.params[name] = self._land_mode
-            return
-        if name.startswith(("fail_mode_", "fail_value_")):
-            if name not in self.params:
-                raise ValueError(f"{type(self).__name__}: unknown parameter '{name}'")
-            self._check_failure(name, value)
-            self.params[name] = value
-            self._apply_failures()
-            return
-        if name in ("current_speed", "current_direction"):
-            old = self.params[name]
-            self.params[name] = value
-            try:
-                f = self._real(name, lo=0.0 if name == "current_speed" else None)
-            except ValueError:
-                self.params[name] = old
-                raise
-            if name == "current_speed":
-                self._current.speed = f
-            else:
-                self._current.direction = f
-            return
-        if name == "wave_hs":
-            self._check_tunable(name, value, lambda f: f >= 0.0, ">= 0")
-            self._waves.field.set_hs(float(value))
-            self.params[name] = value
-            return
-        if name == "mag_fault_amplitude":
-            self._check_tunable(name, value, lambda f: True, "finite")
-            self.params[name] = value
-            self._sensors.set_mag_fault(float(value))
-            return
-        if name in FAULT_PARAMS:
-            ok = (lambda f: 0.0 <= f <= 1.0) if name == "usbl_outlier_rate" else (lambda f: f >= 0.0)
-            self._check_tunable(name, value, ok, "within [0, 1]" if name == "usbl_outlier_rate" else ">= 0")
-            self.params[name] = value
-            self._set_pos_faults()
-            return
+        """Checked by Block (range, type), then applied to the part of the plant it belongs to."""
         super().set_parameter(name, value)
-
-    @staticmethod
-    def _check_tunable(name: str, value: Any, ok: Any, what: str) -> None:
-        """ValueError naming the parameter unless value is a finite number satisfying ``ok``."""
-        try:
-            f = float(value)
-        except (TypeError, ValueError):
-            raise ValueError(f"{name} must be a number, got {value!r}") from None
-        if not (math.isfinite(f) and ok(f)):
-            raise ValueError(f"{name} must be {what}, got {value!r}")
+        if name == "land_mode" and self._land is not None:
+            self._land_mode = int(float(value))
+        elif name.startswith(("fail_mode_", "fail_value_")):
+            self._apply_failures()
+        elif name == "current_speed":
+            self._current.speed = float(value)
+        elif name == "current_direction":
+            self._current.direction = float(value)
+        elif name == "wave_hs":
+            self._waves.field.set_hs(float(value))
+        elif name == "mag_fault_amplitude":
+            self._sensors.set_mag_fault(float(value))
+        elif name in FAULT_PARAMS:
+            self._set_pos_faults()
 
     # -- conveniences for tests and analysis ---------------------------------------------------
     @property

@@ -16,8 +16,8 @@ lazily during the run) is an empty instance of the same ``components`` class mad
 ``object.__new__`` (no ``__init__``) and filled with plain data. Everything is checked first
 (node kinds, dtypes, shapes of arrays the live block already has, classes) and applied only when
 the whole tree fits, so a rejected tree leaves the block untouched. Vessel definitions
-(``components.vessel_spec``) are configuration, not state: their place is recorded and checked,
-the live ones are kept.
+(``components.vessel_spec``) and a block's interface and slots (``components.block``) are
+configuration, not state: their place is recorded and checked, the live ones are kept.
 
 The tree survives ``json`` after ``fmus._state`` encodes arrays and NumPy scalars as bytes; that
 is how an FMU state is serialised. Python floats round-trip exactly through ``repr``.
@@ -38,7 +38,8 @@ BIT_GENERATORS: dict[str, type] = {
 }
 # This package's import name: "seafmu.components" when installed, "<build package>.components" in an FMU.
 _PACKAGE = __name__.rpartition(".")[0]
-CONFIG_MODULES = (f"{_PACKAGE}.vessel_spec",)
+# Configuration, not state: vessel definitions, and the signal metadata and slots of block.py.
+CONFIG_MODULES = (f"{_PACKAGE}.vessel_spec", f"{_PACKAGE}.block")
 STATE_PACKAGE = f"{_PACKAGE}."
 _MISSING = object()
 

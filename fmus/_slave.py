@@ -295,17 +295,10 @@ class BlockSlave(Fmi2Slave):
         self._u[i] = value
 
     def _check_param(self, name: str, value: Any) -> None:
+        """The block's own check (components.block.Signal.check): one place for every bound."""
         sig = self._signals.get(name)
-        if sig is None or sig.type == "string":
-            return
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ValueError(f"parameter '{name}' must be a number, got {value!r}")
-        if not math.isfinite(value):
-            raise ValueError(f"parameter '{name}' must be finite, got {value!r}")
-        if sig.min is not None and value < sig.min:
-            raise ValueError(f"parameter '{name}' = {value!r} is below its minimum {sig.min!r}")
-        if sig.max is not None and value > sig.max:
-            raise ValueError(f"parameter '{name}' = {value!r} is above its maximum {sig.max!r}")
+        if sig is not None:
+            sig.check(value, self.BLOCK.kind)
 
     def _set_param(self, name: str, value: Any) -> None:
         if self._block is not None and not self._initialising:

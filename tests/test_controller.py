@@ -17,6 +17,11 @@ from seafmu.components.vessel_model import VesselModel
 from seafmu.components.vessel_spec import VesselSpec
 
 
+def joystick_at_rest(ctl: ControllerBlock, *parts: object) -> np.ndarray:
+    """The inputs ``parts`` (estimates, setpoints, ...) followed by the joystick axes at rest."""
+    u = np.concatenate([np.atleast_1d(np.asarray(p, dtype=float)) for p in parts])
+    return np.concatenate([u, np.zeros(len(ctl.inp) - len(u))])
+
 def controller(vessel: VesselSpec, **params: object) -> ControllerBlock:
     return ControllerBlock(vessel, full_params(ControllerBlock.interface(vessel), params))
 
@@ -88,7 +93,7 @@ def simulate_dp(vessel: VesselSpec, ctl: ControllerBlock, eta_ref: np.ndarray, s
     eta, nu = np.zeros(6), np.zeros(6)
     F = np.zeros(6) if force_ned is None else np.asarray(force_ned, float)
     for k in range(round(seconds / h)):
-        tau = ctl.step(k * h, h, np.concatenate([eta, nu, eta_ref]))[:6]
+        tau = ctl.step(k * h, h, joystick_at_rest(ctl, eta, nu, eta_ref))[:6]
         dt = h / 5
         for _ in range(5):
             R = rzyx(*eta[3:6])
@@ -124,7 +129,7 @@ def surge_step(ctl: ControllerBlock, vessel: VesselSpec, target: float, seconds:
     eta, nu, eta_ref = np.zeros(6), np.zeros(6), np.array([target, 0, 0, 0, 0, 0])
     xs, taus, zs = [], [], []
     for k in range(round(seconds / h)):
-        y = ctl.step(k * h, h, np.concatenate([eta, nu, eta_ref]))
+        y = ctl.step(k * h, h, joystick_at_rest(ctl, eta, nu, eta_ref))
         nu[0] += h * (y[0] - D * nu[0]) / M
         eta[0] += h * nu[0]
         xs.append(eta[0])
@@ -152,9 +157,9 @@ def test_dp_anti_windup_under_saturation(minerva: VesselSpec) -> None:
 def test_dp_wound_integral_can_unwind_in_saturation(minerva: VesselSpec) -> None:
     """An integral that pushes into the saturation must still be able to come down (no deadlock)."""
     ctl = controller(minerva, tau_max_X=150.0)
-    ctl.step(0.0, 0.05, np.zeros(18))
+    ctl.step(0.0, 0.05, np.zeros(22))
     ctl.z[0] = -150.0 / ctl.ki[0]  # integral force +150 N (tau = -K_i z), the clamp level
-    u = np.zeros(18)
+    u = np.zeros(22)
     u[0], u[6] = 0.1, -0.2  # just past the setpoint, moving back: D term saturates forward
     y = ctl.step(0.05, 0.05, u)
     assert y[0] == pytest.approx(150.0)
@@ -170,13 +175,13 @@ def test_dp_wound_integral_can_unwind_in_saturation(minerva: VesselSpec) -> None
 
 def test_dp_outputs_reference_trajectory_and_saturated_force(minerva: VesselSpec) -> None:
     ctl = controller(minerva)
-    y = ctl.step(0.0, 0.05, np.concatenate([np.zeros(12), [100.0, 0, 0, 0, 0, 0]]))
+    y = ctl.step(0.0, 0.05, joystick_at_rest(ctl, np.zeros(12), [100.0, 0, 0, 0, 0, 0]))
     names = ControllerBlock.interface(minerva).output_names()
     assert names[:6] == ["tau_X", "tau_Y", "tau_Z", "tau_K", "tau_M", "tau_N"]
     assert names[6:12] == [f"{n}_d" for n in minerva.eta_names]
-    assert names[12:] == ["cross_track_error", "corner_error", "leg", "speed_d"]  # appended at the end
+    assert names[12:] == ["cross_track_error", "corner_error", "leg", "speed_d"]
     assert 0.0 < y[6] < 0.01  # the reference model starts smoothly, not at the setpoint
-    y = ctl.step(0.05, 0.05, np.concatenate([[-50.0], np.zeros(11), [100.0, 0, 0, 0, 0, 0]]))
+    y = ctl.step(0.05, 0.05, joystick_at_rest(ctl, [-50.0], np.zeros(11), [100.0, 0, 0, 0, 0, 0]))
     assert y[0] == pytest.approx(ctl.tau_max[0])
 
 
@@ -189,7 +194,7 @@ def simulate_heading(vessel: VesselSpec, ctl: ControllerBlock, yaw_ref: float, s
     m66, dq = vessel.M[2, 2], vessel.D_Q[2, 2]
     yaw, r, out = 0.0, 0.0, []
     for k in range(round(seconds / h)):
-        y = ctl.step(k * h, h, np.array([0.0, 0.0, yaw, u, v, r, yaw_ref, 50.0]))
+        y = ctl.step(k * h, h, joystick_at_rest(ctl, [0.0, 0.0, yaw, u, v, r, yaw_ref, 50.0]))
         for _ in range(5):
             r += h / 5 * (y[2] - dq * abs(r) * r + moment) / m66
             yaw += h / 5 * r
@@ -236,7 +241,8 @@ def test_amv_yaw_moment_saturates(amv: VesselSpec) -> None:
 
 def test_errors_name_input_and_parameter(minerva: VesselSpec, amv: VesselSpec) -> None:
     with pytest.raises(ValueError, match="yaw_ref"):
-        controller(amv).step(0.0, 0.05, np.array([0, 0, 0, 0, 0, 0, np.inf, 0.0]))
+        ctl = controller(amv)
+        ctl.step(0.0, 0.05, joystick_at_rest(ctl, [0, 0, 0, 0, 0, 0, np.inf, 0.0]))
     with pytest.raises(ValueError, match="course_mode"):
         controller(amv, course_mode=2)
     with pytest.raises(ValueError, match="kp_north"):
@@ -247,7 +253,7 @@ def test_errors_name_input_and_parameter(minerva: VesselSpec, amv: VesselSpec) -
 
 def test_tunable_gain_change_and_deepcopy(minerva: VesselSpec) -> None:
     ctl = controller(minerva)
-    u = np.concatenate([np.zeros(12), [1.0, 0, 0, 0, 0, 0]])
+    u = joystick_at_rest(ctl, np.zeros(12), [1.0, 0, 0, 0, 0, 0])
     for k in range(20):
         ctl.step(k * 0.05, 0.05, u)
     twin = copy.deepcopy(ctl)

@@ -96,14 +96,14 @@ def test_initial_outputs_and_thrust_consistency(amv: VesselSpec) -> None:
 @pytest.mark.parametrize(
     ("params", "message"),
     [
-        ({"noise_scale": -1}, "noise_scale must be >= 0, got -1"),
-        ({"seed": -3}, "seed must be >= 0"),
-        ({"seed": 1.5}, "seed must be an integer"),
-        ({"substep": 0.0}, "substep must be >= "),
-        ({"current_speed": -0.1}, "current_speed must be >= 0"),
-        ({"current_direction": float("nan")}, "current_direction must be finite"),
-        ({"yaw_0": "north"}, "yaw_0 must be a number"),
-        ({"u_0": float("inf")}, "u_0 must be finite"),
+        ({"noise_scale": -1}, "parameter 'noise_scale' must be >= 0, got -1"),
+        ({"seed": -3}, "parameter 'seed' must be >= 0"),
+        ({"seed": 1.5}, "parameter 'seed' must be an integer"),
+        ({"substep": 0.0}, "parameter 'substep' must be >= "),
+        ({"current_speed": -0.1}, "parameter 'current_speed' must be >= 0"),
+        ({"current_direction": float("nan")}, "parameter 'current_direction' must be finite"),
+        ({"yaw_0": "north"}, "parameter 'yaw_0' must be a number"),
+        ({"u_0": float("inf")}, "parameter 'u_0' must be finite"),
         ({"bogus": 1}, "bogus"),
     ],
 )
@@ -135,7 +135,7 @@ def test_set_parameter(amv: VesselSpec) -> None:
     block = PlantBlock(amv, {})
     block.set_parameter("current_speed", 0.3)
     block.set_parameter("current_direction", 1.0)
-    with pytest.raises(ValueError, match="current_speed must be >= 0"):
+    with pytest.raises(ValueError, match="parameter 'current_speed' must be >= 0"):
         block.set_parameter("current_speed", -1.0)
     assert block.params["current_speed"] == 0.3  # a rejected value leaves the old one
     with pytest.raises(ValueError, match="noise_scale"):
@@ -175,9 +175,15 @@ def test_same_seed_same_run_different_seed_different(minerva: VesselSpec) -> Non
 
 
 def test_adding_a_sensor_leaves_the_others_noise_unchanged(amv: VesselSpec) -> None:
-    extra = dataclasses.replace(amv.sensors[0], name="gnss2", channels=["north"])
-    # channels may not repeat within one vessel file, but the block does not care: reuse 'north'
-    bigger = dataclasses.replace(amv, sensors=[*amv.sensors, extra])
+    # Output names must be unique (the block reads and writes them by name): the base vessel's
+    # speed log measures u only, the added sensor v.
+    speed = amv.sensors[-1]
+    base = dataclasses.replace(amv, sensors=[*amv.sensors[:-1], dataclasses.replace(
+        speed, channels=["u"], noise_std=speed.noise_std[:1], bias=speed.bias[:1])])
+    extra = dataclasses.replace(speed, name="log2", channels=["v"], noise_std=speed.noise_std[1:],
+                                bias=speed.bias[1:])
+    bigger = dataclasses.replace(base, sensors=[*base.sensors, extra])
+    amv = base
     inputs = np.tile([1.0, 0.8], (100, 1))
     a = run(PlantBlock(amv, {"seed": 9}), inputs, 0.1)
     b = run(PlantBlock(bigger, {"seed": 9}), inputs, 0.1)
@@ -357,9 +363,10 @@ def test_failure_at_start_and_copied_with_the_state(minerva: VesselSpec) -> None
 
 @pytest.mark.parametrize(
     ("name", "value", "message"),
-    [("fail_mode_2", 3, "fail_mode_2 must be one of"), ("fail_mode_2", 0.5, "fail_mode_2 must be one of"),
-     ("fail_value_2", 25.0, "fail_value_2 must be within"),
-     ("fail_value_2", "x", "fail_value_2 must be a number")],
+    [("fail_mode_2", 3, "parameter 'fail_mode_2' must be one of 0, 1, 2"),
+     ("fail_mode_2", 0.5, "parameter 'fail_mode_2' must be one of"),
+     ("fail_value_2", 25.0, "parameter 'fail_value_2' must be within"),
+     ("fail_value_2", "x", "parameter 'fail_value_2' must be a number")],
 )
 def test_bad_failure_parameters_raise_naming_them(minerva: VesselSpec, name: str, value: object,
                                                   message: str) -> None:
@@ -386,6 +393,6 @@ def test_amv_land_mode_follows_the_screw_kinematics(amv: VesselSpec) -> None:
     y2 = p.step(10.0, 0.05, np.array([1.0, 1.0]))
     # no jump at the water line: u changes by what the 25 N of thrust does in one step (0.5 m/s^2)
     assert abs(y2[iu] - y[iu]) < 0.03
-    with pytest.raises(ValueError, match="land_mode must be 0"):
+    with pytest.raises(ValueError, match="parameter 'land_mode' must be one of 0, 1, 2"):
         p.set_parameter("land_mode", 3)
     assert "land_mode" not in [s.name for s in PlantBlock.interface(load_vessel("minerva2")).parameters]
