@@ -20,8 +20,9 @@ own (``gnc.allocator``) and the block's string parameter ``allocator`` may choos
   z_k >= 0 per camera thruster with an exact penalty ``camera_penalty`` on z: the thesis's
   indicator (sum of negative front thrust) is minimised above the allocation error (default).
 
-The integer parameter ``method`` is the selector from before the registry, kept for existing
-scenarios: 0 = the variant named by ``allocator``, 1 = ``qp``, 2 = ``pinv_camera``, 3 = ``qp_camera``.
+The integer parameter ``method`` also selects the law (0 = the variant named by ``allocator``,
+1 = ``qp``, 2 = ``pinv_camera``, 3 = ``qp_camera``): a number lets the allocation-comparison and
+thruster-failure scenarios switch laws by event and lets a host without string parameters choose.
 
 The thesis's benchmark variant "drop thruster 1 and solve 6 x 6" is ``enable_1 = 0`` with any method.
 
@@ -532,7 +533,7 @@ class AllocatorBlock(Block):
             params.append(Signal(f"enable_{i + 1}", "", f"1 = thruster {th.names[i]} in use, 0 = dropped "
                                  "or failed (thrust counted as that of stuck_n; command 0)", min=0, max=1,
                                  start=1, type="integer", tunable=True))
-        params.append(Signal("method", "", "selector: 0 = the variant named by 'allocator', 1 = qp "
+        params.append(Signal("method", "", "law by number: 0 = the variant named by 'allocator', 1 = qp "
                              "(constrained QP), 2 = pinv_camera (thesis S on camera thrusters going "
                              "negative), 3 = qp_camera (QP minimising negative camera thrust)",
                              min=0, max=len(METHODS) - 1, start=0, type="integer", tunable=True,
@@ -608,7 +609,7 @@ class AllocatorBlock(Block):
         m, p, th = self._m, self.params, self.vessel.thrusters
         self._method = int(float(p["method"]))
         # The active variant's name (the law object itself is looked up, never stored: state).
-        self._variant = registry.LEGACY_METHODS[self._method] or str(p["allocator"])
+        self._variant = registry.METHOD_VARIANTS[self._method] or str(p["allocator"])
         law = self._law
         self._w = np.array([float(p[f"w_{i + 1}"]) for i in range(m)])
         self._enabled = tuple(int(float(p[f"enable_{i + 1}"])) == 1 for i in range(m))

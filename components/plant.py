@@ -1,10 +1,10 @@
 """The plant block: vessel dynamics + thruster shafts + current + waves + sensors behind the Block contract.
 
-Environment and sensor faults (parameters appended after the thruster failures, outputs after
-``sog``): JONSWAP waves (``components/waves.py``) enter the vessel model as the external body
-force tau_ext, re-evaluated at the time midpoint of every RK4 sub-step (held over the sub-step,
-position of the sub-step's start); a slowly varying current (``components/environment.py``); a
-magnetometer calibration fault and position-fix outliers/dropout (``components/sensors.py``).
+Environment and sensor faults: JONSWAP waves (``components/waves.py``) enter the vessel model as
+the external body force tau_ext, re-evaluated at the time midpoint of every RK4 sub-step (held
+over the sub-step, position of the sub-step's start); a slowly varying current
+(``components/environment.py``); a magnetometer calibration fault and position-fix
+outliers/dropout (``components/sensors.py``).
 Each random process has its own stream derived from ``seed`` (SeedSequence([seed, tag])), so
 switching one on changes nothing in the others, and with every new parameter at its default the
 run is bit-identical to the plant without them.

@@ -43,8 +43,8 @@ CONTROLLERS: dict[str, Variant] = {v.name: v for v in (
             "linear backstepping; joystick and land mode of an amphibious vessel (AMV OSF)",
             tuning=("kp", "kd", "ki", "ref_omega", "ref_zeta", "bs_k1", "bs_k2", "bs_ki")),
     Variant("axis_trial", ".axis_trial", "AxisTrialController",
-            "test-plan trials (seafmu testplan): dp_pid's interface; the DOF with zero gains is free under an "
-            "open-loop joystick force, the others held at the starting pose",
+            "test-plan trials (seafmu testplan): dp_pid's interface; the DOF with zero gains is free "
+            "under an open-loop joystick force, the others held at the starting pose",
             tuning=("omega", "zeta", "omega_min_attitude", "attitude_factor", "integral_ratio", "ref_omega",
                     "ref_zeta")),
 )}
@@ -70,9 +70,9 @@ GUIDANCE: dict[str, Variant] = {v.name: v for v in (
 
 REGISTRIES = {"controller": CONTROLLERS, "allocator": ALLOCATORS, "guidance": GUIDANCE}
 
-# Legacy integer selector of the allocator (parameter ``method``, kept for existing scenarios):
-# 0 = the variant named by the ``allocator`` parameter, 1.. = these variants.
-LEGACY_METHODS: tuple[str | None, ...] = (None, "qp", "pinv_camera", "qp_camera")
+# The allocator's integer selector (parameter ``method``: a number, so events and hosts without
+# string parameters can switch laws): 0 = the variant named by ``allocator``, 1.. = these variants.
+METHOD_VARIANTS: tuple[str | None, ...] = (None, "qp", "pinv_camera", "qp_camera")
 
 _resolved: dict[tuple[str, str], Any] = {}
 

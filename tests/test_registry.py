@@ -152,7 +152,7 @@ def test_allocator_parameter_chooses_the_variant() -> None:
     taus = rng.normal(scale=[300, 300, 300, 150, 150, 400], size=(40, 6))
     by_name = _run(block(AllocatorBlock, minerva, allocator="qp"), taus)
     by_method = _run(block(AllocatorBlock, minerva, method=1), taus)
-    np.testing.assert_array_equal(by_name, by_method)  # the legacy selector is the same variant
+    np.testing.assert_array_equal(by_name, by_method)  # the integer selector is the same variant
     overridden = block(AllocatorBlock, minerva, allocator="pinv", method=1)
     assert overridden.variant == "qp"  # a non-zero method wins (existing scenarios)
     # AMV: the two-screw priority keeps the yaw moment in saturation, the pseudo-inverse does not
