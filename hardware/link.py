@@ -194,6 +194,8 @@ class HardwareLink:
         record_dir: str | Path | None = None,
         vessel: str | None = None,
     ) -> None:
+        # Long because it sets the link's whole state in one place (codecs, output slots, ports,
+        # pacing, alarms, recorder), one attribute a line; the parts are made by helpers already.
         self.profile = load_profile(profile)
         p = self.profile
         self.name = name
