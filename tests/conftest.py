@@ -25,3 +25,32 @@ def built_fmus() -> dict[tuple[str, str], object]:
 
     build_all()
     return {(v, k): fmu_path(v, k) for v in VESSELS for k in KINDS}
+
+
+# Tests that take several seconds each (fresh processes, cross-process links, other engines, long
+# identification logs), by file and name. They are marked `slow` here, in one list, so that
+# `pytest -m "not slow"` gives a quick loop while editing; CI (`.ci/run`) runs everything.
+SLOW = {
+    "test_fmu_lifecycle.py": {"test_cli_run_exits_normally_every_time",
+                              "test_300_valid_runs_in_fresh_processes",
+                              "test_200_failed_initialisations_in_a_fresh_process"},
+    "test_hw_loopback.py": {"test_dp_across_processes_holds_position_and_matches_simulation"},
+    "test_hw_safety.py": {"test_sigkill_of_the_controller_process_stops_the_thrusters_within_the_timeout"},
+    "test_ident_maneuver_diagnosis.py": {"test_constant_force_in_a_6dof_maneuver_log_is_named"},
+    "test_ident_maneuver.py": {"test_output_error_beats_ls_under_sensor_noise"},
+    "test_ident_robustness.py": {"test_output_error_scales_linearly_with_the_log_length"},
+    "test_export.py": {"test_exported_files_run_alike_in_libcosim_and_ecos"},
+    "test_coupling.py": {"test_seafmu_jacobi_libcosim_and_ecos_agree"},
+    "test_libcosim_fmus.py": {"test_libcosim_runs_the_four_fmus_and_agrees_with_seafmu"},
+}
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    config.addinivalue_line("markers", "slow: takes several seconds (quick loop: pytest -m 'not slow')")
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    for item in items:
+        name = getattr(item, "originalname", None) or item.name
+        if name in SLOW.get(item.path.name, ()):
+            item.add_marker(pytest.mark.slow)

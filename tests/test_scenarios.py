@@ -1,7 +1,14 @@
-"""Every shipped scenario runs end to end through its four FMUs and passes its own checks."""
+"""Every shipped scenario runs end to end and passes its own checks, each scenario once.
+
+One scenario per vessel runs through its four FMUs (minerva2_dp by the default-run test below,
+amv_osf_autopilot and supply_dp here); the others run in-process, because FMU and in-process runs
+of the same scenario are held equal to 1e-9 (``tests/test_fmus.py``), so running them through
+the FMUs again would test the FMI layer thirteen more times and the scenario no better.
+"""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -13,17 +20,24 @@ from seafmu.results import evaluate_checks
 from seafmu.scenario import SCENARIO_DIR, load_scenario
 
 SHIPPED = sorted(p.stem for p in SCENARIO_DIR.glob("*.yaml"))
+DEFAULT = "minerva2_dp"  # its checks: test_default_run_writes_results_report_and_plots (FMUs)
+THROUGH_FMUS = {"amv_osf_autopilot", "supply_dp"}  # with the default: one scenario per vessel
 
 
 def test_the_issue_scenarios_are_shipped() -> None:
     assert {"minerva2_dp", "amv_osf_autopilot", "amv_osf_autopilot_current"} <= set(SHIPPED)
 
 
-@pytest.mark.parametrize("name", SHIPPED)
+def test_one_scenario_per_vessel_runs_through_the_fmus() -> None:
+    vessels = {load_scenario(n).vessel for n in SHIPPED}
+    assert {load_scenario(n).vessel for n in THROUGH_FMUS | {DEFAULT}} == vessels
+
+
+@pytest.mark.parametrize("name", [n for n in SHIPPED if n != DEFAULT])
 def test_shipped_scenario_passes_its_checks(built_fmus: dict, name: str) -> None:
     sc = load_scenario(name)
     assert len(sc.checks) >= 3, "a shipped scenario is an acceptance test: it needs checks"
-    result = run(sc, progress=False)
+    result = run(sc, mode="fmu" if name in THROUGH_FMUS else "inprocess", progress=False)
     checks = evaluate_checks(result)
     failed = [f"{c.name}: {c.value:.4g} ({c.bound})" for c in checks if not c.passed]
     assert not failed, failed
@@ -50,3 +64,6 @@ def test_default_run_writes_results_report_and_plots(built_fmus: dict, tmp_path:
     assert header[0] == "time" and "plant.north" in header and "controller.north_ref" in header
     report = (out / "report.md").read_text()
     assert "real-time factor" in report and "PASS" in report and "FAIL" not in report
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["scenario"] == DEFAULT and len(summary["checks"]) >= 3
+    assert all(c["passed"] for c in summary["checks"])
