@@ -1,0 +1,76 @@
+"""``seafmu testplan VESSEL [--hardware PROFILE]``: the argparse definition and the command."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from seafmu.testplan import TestplanError, relative_error, run_testplan
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """Register the ``testplan`` sub-command."""
+    p = subparsers.add_parser(
+        "testplan", help="run the hydrodynamic test plan: trials, damping identification, vessel file, report",
+        description="Surge, sway and yaw trials (accelerate, hold, release, step from rest) with the "
+                    "axis_trial controller holding the other DOFs, roll/pitch release decays; identifies "
+                    "the damping (diagonal and the coupled Y_r, N_v), writes the trials, a vessel file with "
+                    "the identified damping and a report (docs/testplan.md).")
+    p.add_argument("vessel", help="bundled vessel name (supply, minerva2)")
+    p.add_argument("--hardware", metavar="PROFILE", help="run against a vessel through this hardware link "
+                   "profile (real time) instead of the plant")
+    p.add_argument("-o", "--output", type=Path, help="output folder (default results/testplan_<vessel>)")
+    p.add_argument("--fmu", action="store_true", help="run the plant and GNC as FMUs (default: in-process)")
+    p.add_argument("--seed", type=int, default=1, help="sensor-noise seed of the plant (default 1)")
+    return p
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the plan; 0 when done, 2 on bad input or a failed run (one line)."""
+    from seafmu.components.vessel_spec import VesselFileError, bundled_vessels
+    from seafmu.hardware.profile import load_profile
+    from seafmu.master import SimulationError
+    from seafmu.scenario import ScenarioError
+
+    vessel = args.vessel
+    if vessel not in bundled_vessels():
+        print(f"seafmu: error: vessel '{vessel}': not a bundled vessel (bundled: {', '.join(bundled_vessels())})",
+              file=sys.stderr)
+        return 2
+    if args.hardware is not None:
+        try:
+            prof = load_profile(args.hardware)
+        except (ValueError, OSError) as exc:
+            print(f"seafmu: error: --hardware {args.hardware}: {' '.join(str(exc).split())}", file=sys.stderr)
+            return 2
+        if getattr(prof, "vessel", vessel) != vessel:
+            print(f"seafmu: error: --hardware {args.hardware}: profile is for vessel '{prof.vessel}', not "
+                  f"'{vessel}'", file=sys.stderr)
+            return 2
+    out = args.output or Path("results") / f"testplan_{vessel}"
+    try:
+        res = run_testplan(vessel, out, hardware=args.hardware, mode="fmu" if args.fmu else "inprocess",
+                           seed=args.seed)
+    except (TestplanError, VesselFileError, SimulationError, ScenarioError, ValueError, OSError) as exc:
+        print(f"seafmu: error: testplan {vessel}: {' '.join(str(exc).split())}", file=sys.stderr)
+        return 2
+    print(f"testplan {vessel}: {len(res.plans)} trials in {res.wall:.1f} s")
+    for name, row in res.identified.items():
+        err = relative_error(row)
+        diff = f"{100 * err:.2f} %" if err != float("inf") else f"abs {row['value']:.3g}"
+        print(f"  {name:<10} {row['value']:>14.6g}   file {row['file']:>14.6g}   ({diff})")
+    print(f"report: {out / 'report.md'}; vessel file: {res.vessel_file}")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Stand-alone entry (``python -m seafmu.testplan.cli``) until ``seafmu testplan`` is wired."""
+    parser = argparse.ArgumentParser(prog="seafmu")
+    sub = parser.add_subparsers(dest="command", required=True)
+    add_parser(sub)
+    return run(parser.parse_args(["testplan", *(argv if argv is not None else sys.argv[1:])]))
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,164 @@
+"""Run a trial's scenario (plant or vessel) and turn the log into measured signals.
+
+What a trial measures is what a vessel reports: the sensors' samples (``meas_<channel>`` at each
+new ``<sensor>_count``) and the shaft speeds (``n_i``), never the plant's true state. The force on
+the axis is the thrusters' force tau = B T(n) from the measured shaft speeds through the file's
+thrust law (the bollard-pull law, as on a real vessel). A velocity no sensor measures (a surface
+vessel with GNSS only) is differentiated from the position fixes with a Savitzky-Golay filter and
+turned into the body frame with the measured heading: model-free, unlike the observer's estimate,
+which follows the very damping the trial is to measure.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import yaml
+from scipy.signal import savgol_filter
+
+from seafmu.components.thrusters import speed_to_thrust
+from seafmu.components.vessel_spec import VesselSpec
+from seafmu.master import RunResult, run
+from seafmu.scenario import load_scenario
+from seafmu.testplan.design import TrialPlan, scenario_doc, thrust_matrix
+
+TRANSLATION_POS = {"u": "north", "v": "east", "w": "down"}
+
+
+class TestplanError(ValueError):
+    """A test plan that cannot go on; the message is one line."""
+
+
+@dataclass
+class Measurement:
+    """A trial's measured signals (SI), on the sample times of its velocity sensor."""
+
+    plan: TrialPlan
+    t: np.ndarray  # s
+    y: np.ndarray  # velocity (m/s, rad/s) of the trial's DOF; roll/pitch: the angle (rad)
+    tau: np.ndarray  # (n, dof) thrusters' generalised force at t
+    nu: np.ndarray  # (n, dof) measured/derived body velocities at t (nan where not measured)
+    source: str  # how y was measured, in words
+    noise: float  # sensor noise std of y's channel(s) as the vessel file states it
+    scenario: Path | None = None
+    truth: dict[str, np.ndarray] = field(default_factory=dict)  # true states (simulation only)
+    wall: float = 0.0
+
+
+def run_trial(tp: TrialPlan, vessel: VesselSpec, folder: Path, hardware: str | None, mode: str,
+              seed: int) -> Measurement:
+    """Write the trial's scenario, run it, and measure."""
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f"{tp.name}_scenario.yaml"
+    path.write_text(yaml.safe_dump(scenario_doc(tp, vessel, hardware, seed), sort_keys=False))
+    scenario = load_scenario(path)
+    rec = folder / f"{tp.name}_recording" if hardware else None
+    result = run(scenario, mode="inprocess" if mode == "inprocess" else "fmu", progress=False,
+                 record_dir=rec)
+    m = measure(tp, vessel, result)
+    m.scenario = path
+    return m
+
+
+def _samples(result: RunResult, sensor: str) -> np.ndarray:
+    """Row indices where a sensor delivered a new sample."""
+    count = result.signals[f"plant.{sensor}_count"]
+    idx = np.flatnonzero(np.diff(count) != 0) + 1
+    return idx
+
+
+def _sensor_of(vessel: VesselSpec, channel: str) -> tuple[str, float] | None:
+    for s in vessel.sensors:
+        if channel in s.channels:
+            return s.name, float(s.noise_std[s.channels.index(channel)])
+    return None
+
+
+def _window(n_per_s: float, seconds: float) -> int:
+    w = max(5, int(round(seconds * n_per_s)))
+    return w + 1 if w % 2 == 0 else w
+
+
+def body_velocities(vessel: VesselSpec, result: RunResult, t_grid: np.ndarray, smooth_s: float
+                    ) -> tuple[np.ndarray, dict[str, str], dict[str, float]]:
+    """Body velocities at ``t_grid``: measured channels where a sensor has them, else the horizontal
+    ones differentiated from the position fixes (Savitzky-Golay over ``smooth_s``) and rotated
+    by the measured heading. Returns (nu, source per channel, noise per channel)."""
+    t_all = result.time
+    nu = np.full((len(t_grid), vessel.dof), np.nan)
+    how: dict[str, str] = {}
+    noise: dict[str, float] = {}
+    for j, name in enumerate(vessel.nu_names):
+        s = _sensor_of(vessel, name)
+        if s is None:
+            continue
+        idx = _samples(result, s[0])
+        ts, ys = t_all[idx], result.signals[f"plant.meas_{name}"][idx]
+        nu[:, j] = np.interp(t_grid, ts, ys)
+        how[name] = f"{s[0]} ({name} measured)"
+        noise[name] = s[1]
+    missing = [n for n in ("u", "v") if n in vessel.nu_names and n not in how]
+    if missing:
+        pos = _sensor_of(vessel, "north")
+        head = _sensor_of(vessel, "yaw")
+        if pos is None or head is None:
+            raise TestplanError(f"vessel '{vessel.name}': no sensor measures {', '.join(missing)} and no "
+                                "position and heading sensors to derive them from")
+        idx = _samples(result, pos[0])
+        ts = t_all[idx]
+        dt = float(np.median(np.diff(ts)))
+        w = _window(1.0 / dt, smooth_s)
+        n_dot = savgol_filter(result.signals["plant.meas_north"][idx], w, 2, deriv=1, delta=dt)
+        e_dot = savgol_filter(result.signals["plant.meas_east"][idx], w, 2, deriv=1, delta=dt)
+        hidx = _samples(result, head[0])
+        psi = np.unwrap(result.signals["plant.meas_yaw"][hidx])
+        psi_s = np.interp(ts, t_all[hidx], psi)
+        c, s_ = np.cos(psi_s), np.sin(psi_s)
+        body = {"u": c * n_dot + s_ * e_dot, "v": -s_ * n_dot + c * e_dot}
+        # noise of a quadratic Savitzky-Golay slope over w samples
+        k = np.arange(w) - (w - 1) / 2
+        sg_noise = pos[1] / (dt * math.sqrt(float(np.sum(k**2))))
+        for name in missing:
+            nu[:, vessel.nu_names.index(name)] = np.interp(t_grid, ts, body[name])
+            how[name] = (f"{name} differentiated from {pos[0]} positions (Savitzky-Golay, {w} samples = "
+                         f"{w * dt:g} s, quadratic) and rotated by the {head[0]} heading")
+            noise[name] = sg_noise
+    return nu, how, noise
+
+
+def measure(tp: TrialPlan, vessel: VesselSpec, result: RunResult) -> Measurement:
+    """The trial's measured signals from a run's log."""
+    if not result.complete:
+        raise TestplanError(f"{tp.name}: the run stopped at t = {result.t_end:g} s of {tp.duration:g} s")
+    t_all = result.time
+    chan = tp.dof if tp.kind == "release" else tp.nu
+    s = _sensor_of(vessel, chan)
+    if s is not None:
+        t_grid = t_all[_samples(result, s[0])]
+    else:  # derived velocity: on the position fixes
+        pos = _sensor_of(vessel, "north")
+        if pos is None:
+            raise TestplanError(f"vessel '{vessel.name}': nothing measures {chan}")
+        t_grid = t_all[_samples(result, pos[0])]
+    smooth = 0.15 * max(tp.t_step - tp.t_release, 20.0)
+    nu, how, noise = body_velocities(vessel, result, t_grid, smooth)
+    if tp.kind == "release":
+        idx = _samples(result, s[0])
+        y = result.signals[f"plant.meas_{chan}"][idx]
+        src, sig = f"{s[0]} ({chan} measured)", s[1]
+    else:
+        j = vessel.nu_names.index(chan)
+        y = nu[:, j]
+        src, sig = how[chan], noise[chan]
+    n_thr = vessel.thrusters.positions.shape[0]
+    n = np.column_stack([result.signals[f"plant.n_{i + 1}"] for i in range(n_thr)])
+    thrust = speed_to_thrust(vessel.thrusters, n)
+    tau_all = thrust @ thrust_matrix(vessel).T
+    tau = np.column_stack([np.interp(t_grid, t_all, tau_all[:, k]) for k in range(vessel.dof)])
+    truth = {k.split(".", 1)[1]: v for k, v in result.signals.items()
+             if k.split(".", 1)[1] in vessel.eta_names + vessel.nu_names}
+    truth["time"] = t_all
+    return Measurement(tp, t_grid, y, tau, nu, src, sig, truth=truth, wall=result.wall_time)
