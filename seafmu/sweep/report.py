@@ -385,10 +385,11 @@ def write_study_report(study: Study, outcome: Any, out: Path) -> tuple[Path, lis
         rows = []
         for w in worst:
             value = "—" if not math.isfinite(w["value"]) else f"{w['value']:.4g}"
-            rows.append([str(w["case"]), w["status"], w["check"], value, w["bound"],
+            rows.append([str(w["case"]), w["status"], w["check"], value, w["bound"][:160],
                          "—" if not math.isfinite(w["margin"]) else f"{100 * w['margin']:+.1f} %"])
-            worst_lines.append(f"case {w['case']} ({w['status']}; {w['check']}: {value} {w['bound']}): "
-                               f"{w['command']}")
+            why = (f"could not run: {w['bound'][:160]}" if w["status"] == "error"
+                   else f"{w['status']}; {w['check']}: {value}, bound {w['bound']}")
+            worst_lines.append(f"case {w['case']} ({why}): {w['command']}")
         lines += _md_table(["case", "status", "worst check", "value", "bound", "margin"], rows)
         lines += ["", "```bash", *(w["command"] for w in worst), "```", ""]
     errors = frame[frame["status"] == "error"]

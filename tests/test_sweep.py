@@ -1,0 +1,231 @@
+"""`seafmu sweep`: a small study on a local Dask cluster (2 workers), a failing case recorded without
+stopping the study, resume after an interrupted run without redoing finished cases, bad study files
+as one-line errors, and a worst case reproduced exactly by its printed command."""
+
+from __future__ import annotations
+
+import json
+import os
+import shlex
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from seafmu.cli import main
+from seafmu.sweep.study import load_study
+
+SCENARIO = """name: sweep_dp
+vessel: minerva2
+duration: {duration}
+step: 0.05
+record_interval: 0.1
+fmus:
+  plant:
+    kind: plant
+    parameters: {{seed: 1, current_speed: 0.1 m/s, current_direction: 45 deg, down_0: 5 m, substep: 0.05 s,
+                 wave_hs: 0.3 m, wave_tp: 5 s, wave_components: 10}}
+  observer: {{kind: observer}}
+  controller:
+    kind: controller
+    parameters: {{down_ref: 5 m}}
+  allocator: {{kind: allocator}}
+checks:
+  - {{name: north error, signal: plant.north, minus: controller.north_ref, metric: max_abs, after: 2,
+     max: 0.06}}
+  - {{name: EKF north rms, signal: observer.north_hat, minus: plant.north, metric: rms, after: 2, max: 0.1}}
+"""
+
+Done = subprocess.CompletedProcess[str]
+
+STUDY = """name: small
+scenario: base.yaml
+vary:
+  plant.current_speed: {uniform: [0.0 m/s, 0.3 m/s]}
+  controller.ref_omega: {values: [0.0, 0.1]}     # 0 passes validation (min 0), fails in the FMU
+sampling: {method: lhs, samples: 2, seed: 3}
+seeds: 2
+keep: [plant.north]
+metrics:
+  - {name: north rms, signal: plant.north, minus: controller.north_ref, metric: rms, after: 2}
+"""
+
+
+def _write(folder: Path, duration: float, study: str = STUDY) -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "base.yaml").write_text(SCENARIO.format(duration=duration))
+    p = folder / "study.yaml"
+    p.write_text(study)
+    return p
+
+
+def _sweep(args: list[str], cwd: Path, **kw: object) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "seafmu.cli", "sweep", *args], cwd=cwd, capture_output=True,
+                          text=True, timeout=240, **kw)
+
+
+@pytest.fixture(scope="module")
+def small(tmp_path_factory: pytest.TempPathFactory, built_fmus: object) -> tuple[Path, Done]:
+    folder = tmp_path_factory.mktemp("sweep")
+    _write(folder, 8)
+    return folder, _sweep(["study.yaml", "--workers", "2", "--out", "out", "-q"], folder)
+
+
+def test_small_study_on_local_cluster(small: tuple[Path, Done]) -> None:
+    folder, proc = small
+    assert proc.returncode == 1, proc.stderr  # some cases fail: not every case passes
+    frame = pd.read_parquet(folder / "out" / "cases.parquet")
+    assert len(frame) == 8 and sorted(frame["case"]) == list(range(8))
+    assert {"plant.current_speed", "controller.ref_omega", "seed", "status", "error", "wall_time_s",
+            "check: north error", "pass: north error", "metric: north rms", "command"} <= set(frame.columns)
+    assert len(set(frame["worker"])) == 2  # two worker processes shared the cases
+    ok = frame[frame["controller.ref_omega"] == 0.1]
+    assert set(ok["status"]) <= {"pass", "fail"} and np.all(np.isfinite(ok["check: north error"]))
+    assert (ok["pass: north error"] == (ok["check: north error"] <= 0.06)).all()
+    # the sampled speeds span the interval, each with both seeds
+    assert ok.groupby("plant.current_speed")["seed"].apply(sorted).tolist() == [[1, 2], [1, 2]]
+    series = pd.read_parquet(folder / "out" / "timeseries" / f"case_{int(ok['case'].iloc[0]):05d}.parquet")
+    assert list(series.columns) == ["time", "plant.north"] and len(series) == 81
+    report = (folder / "out" / "report.md").read_text()
+    for part in ("## Pass rate", "Wilson interval", "distributions.png", "inputs_vs_checks.png", "Spearman",
+                 "## Worst cases", "seafmu run base.yaml --set"):
+        assert part in report, part
+    for png in ("pass_rates.png", "distributions.png", "inputs_vs_checks.png"):
+        assert (folder / "out" / png).stat().st_size > 1000
+
+
+def test_failing_case_recorded_without_stopping(small: tuple[Path, Done]) -> None:
+    folder, _ = small
+    frame = pd.read_parquet(folder / "out" / "cases.parquet")
+    bad = frame[frame["controller.ref_omega"] == 0.0]
+    assert len(bad) == 4 and set(bad["status"]) == {"error"}
+    for e in bad["error"]:
+        assert "ref_omega" in e and "\n" not in e
+    assert (frame["status"] != "error").sum() == 4  # the others all ran
+    assert "## Cases that could not run" in (folder / "out" / "report.md").read_text()
+
+
+def test_worst_case_reproduces_exactly(small: tuple[Path, Done]) -> None:
+    """The command printed for the worst case that ran gives bit-identical check values."""
+    folder, proc = small
+    frame = pd.read_parquet(folder / "out" / "cases.parquet")
+    printed = [line.split("): ", 1)[1] for line in proc.stdout.splitlines()
+               if line.startswith("  worst: case")]
+    ran = frame[frame["status"] != "error"]
+    worst = ran.loc[(ran["check: north error"] - 0.06).idxmax()]
+    assert worst["command"] in printed
+    argv = shlex.split(worst["command"])
+    assert argv[:2] == ["seafmu", "run"] and "--seed" in argv
+    cwd = Path.cwd()
+    try:
+        os.chdir(folder)
+        rc = main([*argv[1:], "-o", "repro", "-q"])
+    finally:
+        os.chdir(cwd)
+    assert rc == (0 if worst["status"] == "pass" else 1)
+    checks = json.loads((folder / "repro" / "summary.json").read_text())["checks"]
+    for c in checks:
+        assert c["value"] == worst[f"check: {c['name']}"], c["name"]  # exact, not approximate
+
+
+def test_resume_after_interrupt(tmp_path: Path, built_fmus: object) -> None:
+    """SIGINT stops the study cleanly (exit 130, rows kept, cluster closed); the rerun runs only
+    the cases that had not finished and leaves the finished rows untouched."""
+    study = """name: resume
+scenario: base.yaml
+vary:
+  plant.current_speed: {grid: {start: 0.0, stop: 0.25, num: 6, }, unit: m/s}
+seeds: [4]
+"""
+    _write(tmp_path, 20, study)
+    rows = tmp_path / "out" / "cases"
+    proc = subprocess.Popen([sys.executable, "-m", "seafmu.cli", "sweep", "study.yaml", "--workers", "2",
+                             "--out", "out", "-q"], cwd=tmp_path, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 180
+    while time.monotonic() < deadline and len(list(rows.glob("*.json")) if rows.is_dir() else []) < 2:
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    assert "sweep interrupted (SIGINT)" in err
+    first = {p.name: (p.stat().st_mtime_ns, p.read_bytes()) for p in rows.glob("*.json")}
+    assert 2 <= len(first) < 6, "the interrupt came too late to test a resume"
+    assert len(pd.read_parquet(tmp_path / "out" / "cases.parquet")) == len(first)
+    again = _sweep(["study.yaml", "--workers", "2", "--out", "out", "-q"], tmp_path)
+    assert again.returncode in (0, 1), again.stderr
+    assert f"6 of 6 cases finished ({len(first)} before, {6 - len(first)} now" in again.stdout
+    for p in rows.glob("*.json"):
+        if p.name in first:
+            assert (p.stat().st_mtime_ns, p.read_bytes()) == first[p.name], f"{p.name} was redone"
+    frame = pd.read_parquet(tmp_path / "out" / "cases.parquet")
+    assert sorted(frame["case"]) == list(range(6))
+    third = _sweep(["study.yaml", "--out", "out", "-q"], tmp_path)  # nothing left: no cluster, nothing run
+    assert "(6 before, 0 now)" in third.stdout
+
+
+@pytest.mark.parametrize("study, expected", [
+    ("name: x\nscenario: base.yaml\nvary: {plant.current_speed: {uniform: [0, 1]}}\nbogus: 1\n",
+     "bogus: unknown field"),
+    ("name: x\nscenario: base.yaml\nvary: {plant.current_speed: {uniform: [0, 1], values: [1]}}\n",
+     "give exactly one of values, grid, uniform"),
+    ("name: x\nscenario: nowhere\n", "scenario: scenario 'nowhere': no such file or shipped scenario"),
+    ("name: x\nscenario: base.yaml\nvary: {plant.current_speed: {uniform: [-1 m/s, 0.2 m/s]}}\n"
+     "sampling: {samples: 4}\n", "m/s is below the minimum 0"),
+    ("name: x\nscenario: base.yaml\nvary: {plant.current_speed: {uniform: [0 m/s, 2 deg]}}\n",
+     "mixes units deg, m/s"),
+    ("name: x\nscenario: base.yaml\nvary: {plant.nothing: {values: [1, 2]}}\n",
+     "--set plant.nothing=1: no such variable in FMU 'plant'"),
+    ("name: x\nscenario: base.yaml\nvary: {plant.current_speed: {uniform: [0, 1]}}\n"
+     "sampling: {method: sobol, samples: 6}\n", "Sobol sequences need a power of 2"),
+    ("name: x\nscenario: base.yaml\nvary: {plant.current_speed: {uniform: [0, 1]}}\nsampling: {samples: 3}\n"
+     "seeds: 4\npair_seeds: true\n", "4 seeds for 3 samples"),
+    ("name: x\nscenario: base.yaml\nkeep: [plant.nothing]\n", "keep[0]: 'plant.nothing' is not a recorded"),
+    ("name: x\nscenario: base.yaml\nvary: {thruster: {values: [1, 2]}}\n", "vary.thruster: an input is"),
+    ("- just a list\n", "expected a mapping of study fields"),
+])
+def test_bad_study_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str], study: str,
+                               expected: str) -> None:
+    path = _write(tmp_path, 8, study)
+    assert main(["sweep", str(path), "--out", str(tmp_path / "out"), "-q"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("seafmu: error: "), err
+    assert expected in err
+    assert not (tmp_path / "out").exists()  # nothing ran, nothing written
+
+
+def test_dry_run_and_case_design(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    study = """name: design
+scenario: base.yaml
+vary:
+  plant.current_speed: {uniform: [0.0 m/s, 0.2 m/s]}
+  plant.current_direction: {normal: {mean: 45 deg, std: 10 deg, min: 30 deg, max: 60 deg}}
+  plant.wave_hs: {lognormal: {median: 0.3 m, sigma: 0.2}}
+  allocator.method: {choice: [0, 1]}
+  failed: {values: [1, 3], set: {"plant.fail_mode_{value}@4": 1, "allocator.enable_{value}@4": 0}}
+sampling: {method: sobol, samples: 8, seed: 1}
+seeds: {start: 10, count: 8}
+pair_seeds: true
+"""
+    path = _write(tmp_path, 8, study)
+    s = load_study(path)
+    assert len(s.cases) == 16
+    speeds = sorted({c.inputs["plant.current_speed"] for c in s.cases})
+    assert len(speeds) == 8 and 0 <= speeds[0] and speeds[-1] <= 0.2
+    # scrambled Sobol: one point in each eighth of the interval
+    assert sorted(int(v / 0.025) for v in speeds) == list(range(8))
+    assert all(30 <= c.inputs["plant.current_direction"] <= 60 for c in s.cases)
+    assert {c.inputs["allocator.method"] for c in s.cases} == {0, 1}
+    assert sorted({c.seed for c in s.cases}) == list(range(10, 18))
+    c3 = next(c for c in s.cases if c.inputs["failed"] == 3)
+    assert "plant.fail_mode_3@4=1" in c3.overrides and "allocator.enable_3@4=0" in c3.overrides
+    assert len({c.key for c in s.cases}) == 16
+    assert main(["sweep", str(path), "--dry-run", "--out", str(tmp_path / "out")]) == 0
+    out = capsys.readouterr().out
+    assert "design: 16 cases, all valid; 16 to run" in out and out.count("to run") == 17
+    assert not (tmp_path / "out").exists()
