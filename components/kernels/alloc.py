@@ -1,0 +1,129 @@
+"""Compiled allocation steps (``components/allocation.py``): the pseudo-inverse with clipping,
+the inverse thrust law, the allocator's outputs, and the QP's per-call bounds.
+
+``pinv_clip``: T = P (tau - tau_fixed) + T_fixed, clipped into [lo, hi], saturation flags
+(``AllocatorBlock.pseudo_inverse`` without the camera re-weighting, which stays in Python: it
+needs other allocation matrices). ``speed_from_thrust``: ``thrusters.thrust_to_speed``.
+``outputs``: n, T, tau_alloc = B T, ||B T - tau||, sat, T^T T as ``AllocatorBlock.step`` lays
+them out. ``qp_bounds``: the bounds DAQP gets per call (thrust box, equality rows = tau).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ._jit import kernel
+
+
+@kernel
+def pinv_clip(
+    P: np.ndarray,
+    tau: np.ndarray,
+    tau_fixed: np.ndarray,
+    T_fixed: np.ndarray,
+    any_off: bool,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    T: np.ndarray,
+    Tc: np.ndarray,
+    sat: np.ndarray,
+) -> None:
+    """Unclipped T, clipped Tc and sat = (Tc != T) into the given arrays."""
+    m, d = P.shape
+    tt = np.empty(d)
+    for j in range(d):
+        tt[j] = tau[j] - tau_fixed[j] if any_off else tau[j]
+    for i in range(m):
+        s = 0.0
+        for j in range(d):
+            s += P[i, j] * tt[j]
+        if any_off:
+            s = s + T_fixed[i]
+        T[i] = s
+        c = min(max(s, lo[i]), hi[i])
+        Tc[i] = c
+        sat[i] = 1.0 if c != s else 0.0
+
+
+@kernel
+def speed_from_thrust(
+    T: np.ndarray, th: np.ndarray, quadratic: int, n_max: np.ndarray, out: np.ndarray
+) -> None:
+    """n with k n|n| = T (quadratic) or k n = T, k by the sign of T, clipped to +-n_max."""
+    for i in range(T.shape[0]):
+        t = T[i]
+        k = th[0, i] if t >= 0.0 else th[1, i]
+        if quadratic:
+            sg = 1.0 if t > 0.0 else (-1.0 if t < 0.0 else 0.0)
+            n = sg * math.sqrt(abs(t) / k)
+        else:
+            n = t / k
+        out[i] = min(max(n, -n_max[i]), n_max[i])
+
+
+@kernel
+def outputs(
+    T: np.ndarray,
+    tau: np.ndarray,
+    B: np.ndarray,
+    th: np.ndarray,
+    quadratic: int,
+    n_max: np.ndarray,
+    off: np.ndarray,
+    any_off: bool,
+    sat: np.ndarray,
+    y: np.ndarray,
+) -> None:
+    """y[:m] = n, y[m:2m] = T, then tau_alloc = B T, ||tau_alloc - tau||, sat, and y[k+2+m] = T^T T.
+
+    (The negative front thrust y[k+1+m] and the QP iterations y[k+3+m] are the caller's.)
+    """
+    d, m = B.shape
+    n = np.empty(m)
+    speed_from_thrust(T, th, quadratic, n_max, n)
+    for i in range(m):
+        y[i] = 0.0 if (any_off and off[i]) else n[i]
+        y[m + i] = T[i]
+    k = 2 * m + d
+    ss = 0.0
+    for j in range(d):
+        s = 0.0
+        for i in range(m):
+            s += B[j, i] * T[i]
+        y[2 * m + j] = s
+        e = s - tau[j]
+        ss += e * e
+    y[k] = math.sqrt(ss)
+    for i in range(m):
+        y[k + 1 + i] = sat[i]
+    e2 = 0.0
+    for i in range(m):
+        e2 += T[i] * T[i]
+    y[k + 2 + m] = e2
+
+
+@kernel
+def qp_bounds(
+    bu: np.ndarray, bl: np.ndarray, lo: np.ndarray, hi: np.ndarray, tau: np.ndarray, n: int
+) -> None:
+    """DAQP's bounds for one call: lo <= T <= hi and the equality rows B T - s+ + s- = tau."""
+    m = lo.shape[0]
+    for i in range(m):
+        bu[i] = hi[i]
+        bl[i] = lo[i]
+    for j in range(tau.shape[0]):
+        bu[n + j] = tau[j]
+        bl[n + j] = tau[j]
+
+
+@kernel
+def qp_result(
+    x: np.ndarray, lo: np.ndarray, hi: np.ndarray, off: np.ndarray, tol: float, T: np.ndarray, sat: np.ndarray
+) -> None:
+    """T = x[:m] clipped into [lo, hi]; sat where T is at a bound (within tol) on a working thruster."""
+    for i in range(T.shape[0]):
+        t = min(max(x[i], lo[i]), hi[i])
+        T[i] = t
+        sat[i] = 1.0 if ((t <= lo[i] + tol) or (t >= hi[i] - tol)) and not off[i] else 0.0
