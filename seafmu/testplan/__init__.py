@@ -21,7 +21,7 @@ from seafmu.testplan.design import TrialPlan, plan
 from seafmu.testplan.fit import AxisResult, coefficient_names, coupled_terms, identify_axis
 from seafmu.testplan.measure import Measurement, TestplanError, run_trial
 
-__all__ = ["TestplanError", "TestplanResult", "run_testplan", "identify_measurements"]
+__all__ = ["TestplanError", "TestplanResult", "identify_measurements", "run_testplan"]
 
 
 @dataclass
@@ -106,6 +106,10 @@ def run_testplan(vessel_name: str, out: Path, hardware: str | None = None, mode:
     """The whole plan: design, run, measure, identify, write trials, vessel file and report."""
     t0 = time.perf_counter()
     vessel = load_vessel(vessel_name)
+    ctrl = vessel.gnc.controller if vessel.gnc is not None else None
+    if ctrl != "dp_pid":
+        raise TestplanError(f"vessel '{vessel.name}': its controller is '{ctrl}'; the trials' axis_trial "
+                            "controller has dp_pid's interface, so the plan runs on dp_pid vessels only")
     plans = plan(vessel, scale)
     if not plans:
         raise TestplanError(f"vessel '{vessel.name}': no axis the test plan can excite")

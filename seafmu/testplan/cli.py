@@ -12,7 +12,8 @@ from seafmu.testplan import TestplanError, relative_error, run_testplan
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Register the ``testplan`` sub-command."""
     p = subparsers.add_parser(
-        "testplan", help="run the hydrodynamic test plan: trials, damping identification, vessel file, report",
+        "testplan",
+        help="run the hydrodynamic test plan: trials, damping identification, vessel file, report",
         description="Surge, sway and yaw trials (accelerate, hold, release, step from rest) with the "
                     "axis_trial controller holding the other DOFs, roll/pitch release decays; identifies "
                     "the damping (diagonal and the coupled Y_r, N_v), writes the trials, a vessel file with "
@@ -35,8 +36,8 @@ def run(args: argparse.Namespace) -> int:
 
     vessel = args.vessel
     if vessel not in bundled_vessels():
-        print(f"seafmu: error: vessel '{vessel}': not a bundled vessel (bundled: {', '.join(bundled_vessels())})",
-              file=sys.stderr)
+        known = ", ".join(bundled_vessels())
+        print(f"seafmu: error: vessel '{vessel}': not a bundled vessel (bundled: {known})", file=sys.stderr)
         return 2
     if args.hardware is not None:
         try:

@@ -44,7 +44,8 @@ class AxisResult:
     fits: dict[str, FitResult] = field(default_factory=dict)
     method_one: dict[str, float] = field(default_factory=dict)
     levels: dict[str, dict[str, float]] = field(default_factory=dict)  # window -> {v, tau_<k>}
-    coupled: dict[str, tuple[float, float, float]] = field(default_factory=dict)  # tau -> (D_kj, impulse, int nu_j)
+    # held tau name -> (D_kj, impulse int tau_k dt, displacement int nu_j dt)
+    coupled: dict[str, tuple[float, float, float]] = field(default_factory=dict)
 
     @property
     def damping(self) -> dict[str, float]:
@@ -60,13 +61,15 @@ def _segment(m: Measurement, t0: float, t1: float, name: str, force: bool) -> Ru
 
 
 def _baseline(tp: TrialPlan) -> str:
-    if tp.prior.get("d_Q", 0.0) > 0.0:
-        return "linear_quadratic"
+    """The terms the vessel file's model has on this axis (its structure; the values are fitted)."""
+    lin, quad = tp.prior.get("d_L", 0.0) != 0.0, tp.prior.get("d_Q", 0.0) != 0.0
+    if quad:
+        return "linear_quadratic" if lin else "quadratic"
     return "linear"
 
 
 def _free_damping(tp: TrialPlan) -> list[str]:
-    return ["d_L", "d_Q"] if _baseline(tp) == "linear_quadratic" else ["d_L"]
+    return {"linear": ["d_L"], "quadratic": ["d_Q"], "linear_quadratic": ["d_L", "d_Q"]}[_baseline(tp)]
 
 
 def identify_axis(m: Measurement) -> AxisResult:
@@ -76,14 +79,24 @@ def identify_axis(m: Measurement) -> AxisResult:
     consts = {"mass": tp.mass}
     if tp.kind == "release":
         run = Run(name="release", y=m.y.copy(), t=m.t - m.t[0])
-        tr = make_trial("decay2", [run], dof=tp.axis, baseline=_baseline(tp), constants=consts,
+        # a free decay fixes only ratios (c/m_eff, d/m_eff): the scale comes from the hydrostatic
+        # stiffness of the file (weight x metacentric height), known better than any damping, and
+        # the effective inertia (held DOFs couple in) is fitted with the damping
+        consts["stiffness"] = tp.prior["c"]
+        base = "linear" if _baseline(tp) == "linear" else "linear_quadratic"  # decay2's baselines
+        tr = make_trial("decay2", [run], dof=tp.axis, baseline=base, constants=consts,
                         name=f"{tp.axis}_release", provenance=PROVENANCE)
         res.trials["record"] = tr
-        res.fits["record"] = fit_timeseries(tr, baseline_model(tr))
-        v = res.fits["record"].params
-        if v.get("c", 0.0) > 0:
-            res.method_one["natural_frequency"] = math.sqrt(v["c"] / tp.mass)
-            res.method_one["zeta"] = v["d_L"] / (2.0 * math.sqrt(v["c"] * tp.mass))
+        model = baseline_model(tr)
+        free = [p for p in model.free if p not in ("d_L", "d_Q")] + _free_damping(tp)
+        model = TSModel("second", dict(model.values), [*free, "m_a"], restoring=model.restoring)
+        res.fits["record"] = fit_timeseries(tr, model)
+        v = res.fits["record"].extras["values"]
+        m_eff = v["M"] + v["m_a"]
+        if v["c"] > 0 and m_eff > 0:
+            res.method_one["natural_frequency"] = math.sqrt(v["c"] / m_eff)
+            res.method_one["zeta"] = v["d_L"] / (2.0 * math.sqrt(v["c"] * m_eff))
+            res.method_one["m_eff"] = m_eff
         return res
 
     lead = 2.0  # s of rest before a segment: the fit sees the force start

@@ -78,7 +78,7 @@ def _sensor_of(vessel: VesselSpec, channel: str) -> tuple[str, float] | None:
 
 
 def _window(n_per_s: float, seconds: float) -> int:
-    w = max(5, int(round(seconds * n_per_s)))
+    w = max(5, round(seconds * n_per_s))
     return w + 1 if w % 2 == 0 else w
 
 

@@ -10,10 +10,10 @@ from typing import Any
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
+import matplotlib.pyplot as plt
 
-from seafmu.identification.timeseries import simulate  # noqa: E402
-from seafmu.testplan.fit import coefficient_names  # noqa: E402
+from seafmu.identification.timeseries import simulate
+from seafmu.testplan.fit import coefficient_names
 
 UNITS = {"surge": ("m/s", "N"), "sway": ("m/s", "N"), "yaw": ("rad/s", "N.m"), "roll": ("rad", "N.m"),
          "pitch": ("rad", "N.m")}
@@ -78,10 +78,12 @@ def write_report(res: Any, out: Path) -> Path:
     L: list[str] = [f"# Test plan: {v.name}", ""]
     where = f"the vessel through hardware profile `{res.hardware}`" if res.hardware else \
         f"the plant ({res.mode}, sensors with the vessel file's noise)"
-    L += [f"Run against {where}; {len(res.plans)} trials, wall time {res.wall:.1f} s. Identified vessel file: "
-          f"`{res.vessel_file.name if res.vessel_file else '-'}`; trials for `seafmu identify`: `trials/`.", ""]
+    vf = res.vessel_file.name if res.vessel_file else "-"
+    L += [f"Run against {where}; {len(res.plans)} trials, wall time {res.wall:.1f} s. "
+          f"Identified vessel file: `{vf}`; trials for `seafmu identify`: `trials/`.", ""]
     L += ["## Results table (the plan's, filled)", "",
-          "| term | identified | 95 % CI | vessel file | difference | from trial |", "|---|---|---|---|---|---|"]
+          "| term | identified | 95 % CI | vessel file | difference | from trial |",
+          "|---|---|---|---|---|---|"]
     for name, row in res.identified.items():
         ci = f"[{_g(row['ci95'][0])}, {_g(row['ci95'][1])}]" if row["ci95"] else "—"
         L.append(f"| {name} ({row['key']}) | {_g(row['value'])} | {ci} | {_g(row['file'])} | {_err(row)} | "
@@ -92,19 +94,22 @@ def write_report(res: Any, out: Path) -> Path:
     for name, r in res.results.items():
         tp, m = r.plan, res.measurements[name]
         vu, fu = UNITS[tp.axis]
-        L += [f"### {tp.axis} ({name})", "", f"Measured: {m.source}; sensor noise {m.noise:.3g} {vu} per sample.", ""]
+        L += [f"### {tp.axis} ({name})", "",
+              f"Measured: {m.source}; sensor noise {m.noise:.3g} {vu} per sample.", ""]
         if tp.kind == "method_one":
             mo = r.method_one
             L += [f"1. **Accelerate and hold**: open-loop {tp.tau} = {tp.force_hold:.4g} {fu} from t = "
-                  f"{tp.t_accelerate:g} s (40 % of the thrust capability), the other DOFs held by `axis_trial`; "
+                  f"{tp.t_accelerate:g} s (40 % of the thrust capability), the other DOFs held by "
+                  "`axis_trial`; "
                   f"steady {tp.nu} = {r.levels['hold']['v']:.4g} {vu}.",
                   f"2. **Release** at t = {tp.t_release:g} s: decay from {tp.nu}0 = {mo['u0']:.4g} {vu}; fit "
                   f"of M v' + d v = 0 ({_decay_curve(r)}): time constant T = M/d = {mo['T_decay']:.4g} s.",
-                  f"3. **Step from rest** at t = {tp.t_step:g} s, measured force {mo['force_step']:.4g} {fu}: "
+                  f"3. **Step from rest** at t = {tp.t_step:g} s, measured force "
+                  f"{mo['force_step']:.4g} {fu}: "
                   f"{tp.nu}_ss = {mo['v_ss_step']:.4g} {vu}, so d = F/{tp.nu}_ss = {mo['d_step']:.5g}, and "
                   f"m = d T = {mo['m_method_one']:.5g} (file: {tp.mass:.5g}).",
-                  "4. **Coefficient written**: output-error fit of the accelerate-hold-release record with the "
-                  "measured force, damping and inertia free: "
+                  "4. **Coefficient written**: output-error fit of the accelerate-hold-release record "
+                  "with the measured force, damping and inertia free: "
                   + ", ".join(f"{coefficient_names(tp.axis).get(k, k)} = {val:.5g}"
                               for k, val in r.fits["record"].params.items())
                   + f"; held-out NRMSE on the step {r.fits['record'].nrmse_validation:.3g} "
@@ -121,8 +126,9 @@ def write_report(res: Any, out: Path) -> Path:
             L += [f"Released from {math.degrees(tp.angle0):.3g} deg, free oscillation fitted as "
                   "m_eff phi'' + d phi' (+ d_Q phi'|phi'|) + c phi = 0 (restoring included): "
                   + ", ".join(f"{k} = {val:.5g}" for k, val in f.params.items())
-                  + f"; omega_n = {r.method_one.get('natural_frequency', float('nan')):.4g} rad/s, zeta (linear "
-                  f"part) = {r.method_one.get('zeta', float('nan')):.3g}; NRMSE {f.nrmse_fit:.3g}.", ""]
+                  + f"; omega_n = {r.method_one.get('natural_frequency', float('nan')):.4g} rad/s, "
+                  f"zeta (linear part) = {r.method_one.get('zeta', float('nan')):.3g}; "
+                  f"NRMSE {f.nrmse_fit:.3g}.", ""]
         for w in r.fits["record"].warnings:
             L.append(f"- warning: {w}")
         L += [f"![{name}]({figs[list(res.results).index(name)]})", ""]
