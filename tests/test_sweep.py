@@ -51,6 +51,7 @@ vary:
 sampling: {method: lhs, samples: 2, seed: 3}
 seeds: 2
 keep: [plant.north]
+worst: 8
 metrics:
   - {name: north rms, signal: plant.north, minus: controller.north_ref, metric: rms, after: 2}
 """
