@@ -99,6 +99,12 @@ class PlantBlock(Block):
             params.append(Signal(f"fail_value_{i + 1}", "rev/s", f"thruster {i + 1} '{name}': shaft speed "
                                  "it is stuck at when fail_mode = 2", min=-n_max, max=n_max, start=0.0,
                                  tunable=True))
+        # A fouled or damaged thruster: its drive follows the command, less force reaches the hull.
+        for i, name in enumerate(th.names):
+            params.append(Signal(f"thruster_efficiency_{i + 1}", "", f"thruster {i + 1} '{name}': fraction "
+                                 "of its thrust law's force that reaches the hull (fouling, damage; 1 = "
+                                 "nominal); thrust_i still reports the law's thrust at the shaft speed, as a "
+                                 "log from the shaft speed would", min=0.0, max=1.5, start=1.0, tunable=True))
         # Environment and sensor faults (components/waves.py, environment.py, sensors.py).
         params += [
             Signal("wave_hs", "m", "significant wave height H_s of the JONSWAP sea (0 = no waves)",
@@ -178,6 +184,8 @@ class PlantBlock(Block):
         self._sensor_out: list[float] = []
         self._stuck: list[tuple[int, float]] = []  # (thruster index, speed command it is stuck at)
         self._apply_failures()
+        self._K: np.ndarray | None = None  # the model's K with the thruster efficiencies (None: nominal)
+        self._apply_efficiency()
         self._y = self._outputs()
 
     def _set_pos_faults(self) -> None:
@@ -257,10 +265,10 @@ class PlantBlock(Block):
             x = self._x
             d = self.vessel.dof
             for j in range(steps):
-                x = model.rk4(x, cmd, dt, 1, vcn, vce, waves.force(t + (j + 0.5) * dt, x[:d]))
+                x = model.rk4(x, cmd, dt, 1, vcn, vce, waves.force(t + (j + 0.5) * dt, x[:d]), self._K)
             self._x = x
         else:
-            self._x = model.rk4(self._x, cmd, h / steps, steps, vcn, vce)
+            self._x = model.rk4(self._x, cmd, h / steps, steps, vcn, vce, None, self._K)
         self._current.step(h)
         self._t = t + h
         changed = self._sensors.update(t, h, self._x[: 2 * self.vessel.dof])
@@ -278,6 +286,17 @@ class PlantBlock(Block):
                 stuck.append((i, float(self.params[f"fail_value_{i + 1}"])))
         self._stuck = stuck
 
+    def _apply_efficiency(self) -> None:
+        """Fold the thruster efficiencies into the model's K (None when all are 1: the nominal K)."""
+        eff = self.efficiency
+        self._K = None if all(e == 1.0 for e in eff) else self._model.k_matrix(eff)
+
+    @property
+    def efficiency(self) -> list[float]:
+        """Per thruster, the fraction of its thrust law that reaches the hull."""
+        p, m = self.params, self.vessel.thrusters.count
+        return [float(p[f"thruster_efficiency_{i + 1}"]) for i in range(m)]
+
     @property
     def failed(self) -> list[int]:
         """0-based indices of the thrusters whose drive has failed."""
@@ -290,6 +309,8 @@ class PlantBlock(Block):
             self._land_mode = int(float(value))
         elif name.startswith(("fail_mode_", "fail_value_")):
             self._apply_failures()
+        elif name.startswith("thruster_efficiency_"):
+            self._apply_efficiency()
         elif name == "current_speed":
             self._current.speed = float(value)
         elif name == "current_direction":

@@ -67,7 +67,7 @@ class VesselModel:
         self._M_lin = self.M[:, :3].tolist() if dof == 6 else self.M[:, :2].tolist()  # M times a velocity
 
         # nu_dot = K @ [T, C+g, nu_r, |nu_r| nu_r]
-        self._K = self.Minv @ np.hstack([self.B, -np.eye(dof), -self.D_L, -self.D_Q])
+        self._K = self._k_matrix(self.B)
         self._M_stack = np.vstack([self.M_RB, self.M_A])  # [M_RB nu; M_A nu] in one product
         self._MA_lin = self.M_A[:, :3].tolist()  # M_A times the (linear-only) current
         th = spec.thrusters
@@ -87,18 +87,33 @@ class VesselModel:
             self.r_g, self.r_b = np.asarray(rs.r_g, float), np.asarray(rs.r_b, float)
             self._g6 = restoring_coefficients(self.W, self.Bu, self.r_g, self.r_b)
 
+    def _k_matrix(self, B: np.ndarray) -> np.ndarray:
+        return self.Minv @ np.hstack([B, -np.eye(self.dof), -self.D_L, -self.D_Q])
+
+    def k_matrix(self, efficiency: list[float] | np.ndarray) -> np.ndarray:
+        """K of ``nu_dot = K [T, C+g, nu_r, |nu_r| nu_r]`` with thruster i delivering ``efficiency[i]``
+        x its thrust law (fouling, damage), for ``rhs``/``rk4``'s ``K``. The model itself never
+        changes (plants share it), so the efficiency lives with the caller; folded into the thrust
+        columns it costs nothing per step, and all ones give the nominal K bit for bit."""
+        eff = np.asarray(efficiency, dtype=float)
+        if eff.shape != (self.m,):
+            raise ValueError(f"efficiency needs {self.m} values, got shape {eff.shape}")
+        return self._k_matrix(self.B * eff)
+
     # -- hot path ------------------------------------------------------------------------------
     def rhs(
         self, x: np.ndarray, n_cmd: list[float], vc_north: float = 0.0, vc_east: float = 0.0,
-        tau_ext: list[float] | None = None,
+        tau_ext: list[float] | None = None, K: np.ndarray | None = None,
     ) -> np.ndarray:
         """x_dot for x = [eta, nu, n]; ``n_cmd`` already clipped to +-n_max (a list, see ``clip``).
 
         ``tau_ext``: extra body-frame generalized force (environment, test rigs), added to B T.
+        ``K``: from ``k_matrix`` for thrusters off their nominal efficiency (default nominal).
         """
+        K = self._K if K is None else K
         if self.dof == 6:
-            return self._rhs6(x, n_cmd, vc_north, vc_east, tau_ext)
-        return self._rhs3(x, n_cmd, vc_north, vc_east, tau_ext)
+            return self._rhs6(x, n_cmd, vc_north, vc_east, tau_ext, K)
+        return self._rhs3(x, n_cmd, vc_north, vc_east, tau_ext, K)
 
     def thrust_list(self, n: list[float]) -> list[float]:
         """Thrust law on a list of shaft speeds (same law as ``thrusters.speed_to_thrust``, faster)."""
@@ -116,7 +131,7 @@ class VesselModel:
         return self.thrust_list(n), ndot
 
     def _rhs3(self, x: np.ndarray, n_cmd: list[float], vcn: float, vce: float,
-              tau_ext: list[float] | None) -> np.ndarray:
+              tau_ext: list[float] | None, K: np.ndarray) -> np.ndarray:
         _, _, psi, u, v, r, *n = x.tolist()
         c, s = math.cos(psi), math.sin(psi)
         ur, vr = u - (c * vcn + s * vce), v - (-s * vcn + c * vce)
@@ -136,11 +151,11 @@ class VesselModel:
             cor = [c - te for c, te in zip(cor, tau_ext, strict=True)]
         T, ndot = self._thrust_and_lag(n, n_cmd)
         nur = [ur, vr, r]
-        nu_dot = self._K @ np.array([*T, *cor, *nur, abs(ur) * ur, abs(vr) * vr, abs(r) * r])
+        nu_dot = K @ np.array([*T, *cor, *nur, abs(ur) * ur, abs(vr) * vr, abs(r) * r])
         return np.array([c * u - s * v, s * u + c * v, r, *nu_dot.tolist(), *ndot])
 
     def _rhs6(self, x: np.ndarray, n_cmd: list[float], vcn: float, vce: float,
-              tau_ext: list[float] | None) -> np.ndarray:
+              tau_ext: list[float] | None, K: np.ndarray) -> np.ndarray:
         _, _, _, phi, theta, psi, u, v, w, p, q, r, *n = x.tolist()
         cphi, sphi = math.cos(phi), math.sin(phi)
         cth, sth = math.cos(theta), math.sin(theta)
@@ -196,18 +211,20 @@ class VesselModel:
             [*T, *force, ur, vr, wr, p, q, r, abs(ur) * ur, abs(vr) * vr, abs(wr) * wr, abs(p) * p,
              abs(q) * q, abs(r) * r]
         )
-        return np.array([*eta_dot, *(self._K @ z).tolist(), *ndot])
+        return np.array([*eta_dot, *(K @ z).tolist(), *ndot])
 
     def rk4(self, x: np.ndarray, n_cmd: list[float], dt: float, steps: int = 1,
-            vc_north: float = 0.0, vc_east: float = 0.0, tau_ext: list[float] | None = None) -> np.ndarray:
+            vc_north: float = 0.0, vc_east: float = 0.0, tau_ext: list[float] | None = None,
+            K: np.ndarray | None = None) -> np.ndarray:
         """``steps`` fixed RK4 steps of size dt with inputs held; angles wrapped after each step."""
         f = self._rhs6 if self.dof == 6 else self._rhs3
+        K = self._K if K is None else K
         h2, h6 = 0.5 * dt, dt / 6.0
         for _ in range(steps):
-            k1 = f(x, n_cmd, vc_north, vc_east, tau_ext)
-            k2 = f(x + h2 * k1, n_cmd, vc_north, vc_east, tau_ext)
-            k3 = f(x + h2 * k2, n_cmd, vc_north, vc_east, tau_ext)
-            k4 = f(x + dt * k3, n_cmd, vc_north, vc_east, tau_ext)
+            k1 = f(x, n_cmd, vc_north, vc_east, tau_ext, K)
+            k2 = f(x + h2 * k1, n_cmd, vc_north, vc_east, tau_ext, K)
+            k3 = f(x + h2 * k2, n_cmd, vc_north, vc_east, tau_ext, K)
+            k4 = f(x + dt * k3, n_cmd, vc_north, vc_east, tau_ext, K)
             x = x + h6 * (k1 + k4 + 2.0 * (k2 + k3))
             for i in self.angle_index:
                 a = x[i]

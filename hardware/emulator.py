@@ -17,6 +17,10 @@ The vessel waits "in the dock" until the first command frame arrives: its physic
 then, so an emulator started before seafmu is at t = 0 when seafmu's loop is; until then it sends
 its initial sample at the sensors' rates, so the link can start up.
 
+A fouled or damaged thruster: ``--thruster-efficiency 3=0.6`` (thruster 3 delivers 60 % of its
+nominal thrust), the plant parameter ``thruster_efficiency_3`` (also from ``--scenario`` or
+``--set``); the status frames still report the shaft speed, as a real drive would.
+
 PORT is a pyserial URL, or ``pty[:PATH]``: a virtual null-modem cable whose other end (printed,
 and symlinked at PATH) is the port to give the link. The same for the CAN channel of ``slcan``
 (``slcan:pty[:PATH]``). The ready line on stdout names both: ``READY serial=... can=...``.
@@ -237,8 +241,11 @@ PlantParameters = Callable[[str], dict[str, Any]]
 """Plant parameters by scenario name: given by the layer that reads scenarios (``seafmu.emulate``)."""
 
 
-def _plant_params(scenario: str | None, sets: list[str], scenario_params: PlantParameters | None = None
-                  ) -> dict[str, Any]:
+def _plant_params(scenario: str | None, sets: list[str], scenario_params: PlantParameters | None = None,
+                  efficiencies: list[str] | None = None) -> dict[str, Any]:
+    """The plant's parameters: the scenario's, then ``--set NAME=VALUE``, then
+    ``--thruster-efficiency I=FRACTION`` (a fouled or damaged thruster, 1-based I); the plant
+    checks names and ranges."""
     params: dict[str, Any] = {}
     if scenario:
         if scenario_params is None:
@@ -247,8 +254,21 @@ def _plant_params(scenario: str | None, sets: list[str], scenario_params: PlantP
         params.update(scenario_params(scenario))
     for item in sets:
         key, _, value = item.partition("=")
-        params[key.strip()] = float(value)
+        params[key.strip()] = _number("--set", item, value)
+    for item in efficiencies or []:
+        index, _, value = item.partition("=")
+        if not index.strip().isdigit() or int(index) < 1:
+            raise ValueError(f"--thruster-efficiency {item!r}: expected THRUSTER=FRACTION with THRUSTER "
+                             "a thruster number from 1, e.g. 3=0.6")
+        params[f"thruster_efficiency_{int(index)}"] = _number("--thruster-efficiency", item, value)
     return params
+
+
+def _number(option: str, item: str, value: str) -> float:
+    try:
+        return float(value)
+    except ValueError:
+        raise ValueError(f"{option} {item!r}: the value after '=' must be a number") from None
 
 
 def build_parser(p: argparse.ArgumentParser | None = None,
@@ -272,6 +292,9 @@ def build_parser(p: argparse.ArgumentParser | None = None,
             "--scenario", help="take the plant parameters (seed, current, initial state) from this scenario"
         )
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="a plant parameter (SI)")
+    p.add_argument("--thruster-efficiency", action="append", default=[], metavar="I=FRACTION",
+                   help="thruster I (from 1) delivers FRACTION of its nominal thrust (fouled or damaged, "
+                   "0..1.5; the plant parameter thruster_efficiency_I), e.g. 3=0.6")
     p.add_argument("--step", type=float, default=0.01, help="physics step, s (default 0.01)")
     p.add_argument("--status-rate", type=float, default=20.0, help="thruster status frames per second")
     p.add_argument(
@@ -335,7 +358,8 @@ def run_args(args: argparse.Namespace, scenario_params: PlantParameters | None =
                 raise ValueError(f"--command-timeout must be > 0, got {args.command_timeout:g}")
         emu = VesselEmulator(
             profile,
-            _plant_params(getattr(args, "scenario", None), args.set, scenario_params),
+            _plant_params(getattr(args, "scenario", None), args.set, scenario_params,
+                          args.thruster_efficiency),
             args.step,
             args.status_rate,
             args.record,

@@ -14,7 +14,7 @@ from fmpy.fmi2 import FMU2Slave
 from fmpy.validation import validate_fmu
 
 from seafmu.hardware.cli import register
-from seafmu.hardware.emulator import VesselEmulator
+from seafmu.hardware.emulator import VesselEmulator, _plant_params, build_parser
 from seafmu.hardware.link_fmu import build_link_fmu
 from seafmu.hardware.profile import load_profile
 from seafmu.hardware.ptybridge import NullModem
@@ -102,3 +102,26 @@ def test_emulate_subcommand_and_its_ready_line() -> None:
         timeout=30,
     )
     assert bad.returncode == 2 and bad.stderr.strip().count("\n") == 0 and "INTERFACE:CHANNEL" in bad.stderr
+
+
+def test_emulator_carries_a_fouled_thruster() -> None:
+    """``--thruster-efficiency 3=0.6`` reaches the emulated plant; bad values are one line naming them."""
+    args = build_parser().parse_args(["minerva2", "--serial", "pty", "--can", "slcan:pty", "--set", "seed=2",
+                                      "--thruster-efficiency", "3=0.6"])
+    params = _plant_params(None, args.set, None, args.thruster_efficiency)
+    assert params == {"seed": 2.0, "thruster_efficiency_3": 0.6}
+    with NullModem() as ser, NullModem() as slcan:
+        profile = load_profile("emulator_pty").with_overrides(**{"serial.url": ser.a, "can.channel": slcan.a})
+        emu = VesselEmulator(profile, params)
+        try:
+            assert emu.plant.efficiency == [1.0, 1.0, 0.6, 1.0, 1.0, 1.0, 1.0]
+        finally:
+            emu.close()
+    for value, why in (("x=0.6", "expected THRUSTER=FRACTION"), ("3=most", "must be a number"),
+                       ("3=2", "parameter 'thruster_efficiency_3' must be within [0, 1.5]")):
+        bad = subprocess.run(
+            [sys.executable, "-m", "seafmu.emulate", "minerva2", "--serial", "pty", "--can", "slcan:pty",
+             "--thruster-efficiency", value],
+            cwd=REPO, capture_output=True, text=True, timeout=60,
+        )
+        assert bad.returncode == 2 and bad.stderr.strip().count("\n") == 0 and why in bad.stderr, bad.stderr

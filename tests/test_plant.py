@@ -46,7 +46,7 @@ def test_interface_amv(amv: VesselSpec) -> None:
         "meas_north", "meas_east", "gnss_count", "meas_yaw", "compass_count", "meas_r", "gyro_count",
         "meas_u", "meas_v", "speed_count", "course", "sog",
     ]  # fmt: skip
-    assert iface.output_names()[22:] == ENV_OUTPUTS_3DOF  # environment/fault outputs appended
+    assert iface.output_names()[22:] == ENV_OUTPUTS_3DOF
     units = {s.name: s.unit for s in iface.outputs}
     assert units["north"] == "m" and units["yaw"] == "rad" and units["u"] == "m/s" and units["r"] == "rad/s"
     assert units["meas_yaw"] == "rad" and units["thrust_1"] == "N" and units["n_2"] == "rev/s"
@@ -54,7 +54,8 @@ def test_interface_amv(amv: VesselSpec) -> None:
     assert list(params) == [
         "seed", "noise_scale", "current_speed", "current_direction",
         "north_0", "east_0", "yaw_0", "u_0", "v_0", "r_0", "substep",
-        "fail_mode_1", "fail_mode_2", "fail_value_1", "fail_value_2", *ENV_PARAMS, "land_mode",
+        "fail_mode_1", "fail_mode_2", "fail_value_1", "fail_value_2",
+        "thruster_efficiency_1", "thruster_efficiency_2", *ENV_PARAMS, "land_mode",
     ]  # fmt: skip
     assert params["seed"].type == "integer" and params["seed"].start == 0
     assert params["noise_scale"].start == 1.0 and params["noise_scale"].min == 0
@@ -311,19 +312,16 @@ def test_course_and_speed_over_ground(amv: VesselSpec) -> None:
 
 
 # -- thruster failures (issue 5) --------------------------------------------------------------------
-def test_failure_parameters_are_appended_and_tunable(minerva: VesselSpec) -> None:
-    params = PlantBlock.interface(minerva).parameters
-    names = [p.name for p in params]
-    i0 = names.index("fail_mode_1")
-    fail = [f"fail_mode_{i}" for i in range(1, 8)] + [f"fail_value_{i}" for i in range(1, 8)]
-    assert names[i0 : i0 + 14] == fail
-    assert names.index("substep") == i0 - 1  # everything before them keeps its place
-    assert names[i0 + 14 :] == ENV_PARAMS  # only the environment/fault parameters come after them
-    spec = {p.name: p for p in params}
+def test_failure_parameters_are_declared_per_thruster_and_tunable(minerva: VesselSpec) -> None:
+    spec = {p.name: p for p in PlantBlock.interface(minerva).parameters}
+    for i in range(1, 8):
+        assert {f"fail_mode_{i}", f"fail_value_{i}", f"thruster_efficiency_{i}"} <= set(spec)
     mode = spec["fail_mode_3"]
     assert mode.type == "integer" and mode.tunable and mode.min == 0 and mode.max == 2
     assert spec["fail_value_3"].unit == "rev/s" and spec["fail_value_3"].tunable
     assert spec["fail_value_3"].min == -20.0 and spec["fail_value_3"].max == 20.0
+    eff = spec["thruster_efficiency_3"]
+    assert eff.tunable and (eff.min, eff.max, eff.start) == (0.0, 1.5, 1.0)
 
 
 def test_failed_thruster_ignores_its_command(minerva: VesselSpec) -> None:
@@ -396,3 +394,57 @@ def test_amv_land_mode_follows_the_screw_kinematics(amv: VesselSpec) -> None:
     with pytest.raises(ValueError, match="parameter 'land_mode' must be one of 0, 1, 2"):
         p.set_parameter("land_mode", 3)
     assert "land_mode" not in [s.name for s in PlantBlock.interface(load_vessel("minerva2")).parameters]
+
+
+# -- thruster efficiency (a fouled or damaged thruster) --------------------------------------------
+def test_thruster_efficiency_scales_that_thrusters_force_only(minerva: VesselSpec) -> None:
+    """Efficiency 0.6 on thruster 3: at a fixed shaft speed its force on the hull is 0.6 x B_3 T(n),
+    every other thruster's force is unchanged (M nu_dot at rest, level, no current, less the
+    zero-thrust restoring force)."""
+    model = VesselModel(minerva)
+    th, d = minerva.thrusters, minerva.dof
+    n_cmd = 0.5 * np.asarray(th.n_max)
+    eff = np.ones(th.count)
+    eff[2] = 0.6
+    K_eff = model.k_matrix(eff)
+    rest = model.initial_state(np.zeros(d), np.zeros(d))
+    base = model.M @ model.rhs(rest, [0.0] * th.count)[d : 2 * d]
+    for k in range(th.count):
+        n = np.zeros(th.count)
+        n[k] = n_cmd[k]
+        x = model.initial_state(np.zeros(d), np.zeros(d), n)  # shaft at its command: steady
+        nominal = model.M @ model.rhs(x, n.tolist())[d : 2 * d] - base
+        fouled = model.M @ model.rhs(x, n.tolist(), K=K_eff)[d : 2 * d] - base
+        law = minerva.thrusters.k_forward[k] * n[k] * abs(n[k])  # quadratic law, forward
+        np.testing.assert_allclose(nominal, model.B[:, k] * law, rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(fouled, eff[k] * nominal, rtol=1e-9, atol=1e-9)
+
+
+def test_thruster_efficiency_in_the_plant_is_tunable(amv: VesselSpec) -> None:
+    """Through the block (AMV, 3 DOF, no restoring): from rest, the screw at 0.6 gives 0.6 x the
+    surge speed and yaw rate (to 0.1 %: quadratic damping and Coriolis are second order at these
+    tiny speeds), the other screw exactly what it gave
+    before; the thrust outputs (the law at the shaft speed, what a log shows) are unchanged; an
+    event gives the same run as the parameter set from the start."""
+    h, steps = 0.02, 5
+    base = {"noise_scale": 0.0}
+    names = PlantBlock.interface(amv).output_names()
+    iu, ir = names.index("u"), names.index("r")
+    for k, ratio in ((1, 0.6), (0, 1.0)):
+        u = np.zeros(2)
+        u[k] = 0.5 * amv.thrusters.n_max[k]
+        nominal = run(PlantBlock(amv, base), np.tile(u, (steps, 1)), h)
+        fouled = run(PlantBlock(amv, {**base, "thruster_efficiency_2": 0.6}), np.tile(u, (steps, 1)), h)
+        assert abs(nominal[-1, iu]) > 1e-4 and abs(nominal[-1, ir]) > 1e-5  # the screw does push
+        np.testing.assert_allclose(fouled[:, [iu, ir]], ratio * nominal[:, [iu, ir]], rtol=1e-3)
+        it = names.index(f"thrust_{k + 1}")
+        np.testing.assert_array_equal(fouled[:, it], nominal[:, it])
+    u = np.array([0.0, 0.5 * amv.thrusters.n_max[1]])
+    event = PlantBlock(amv, base)
+    event.set_parameter("thruster_efficiency_2", 0.6)
+    assert event.efficiency == [1.0, 0.6]
+    np.testing.assert_array_equal(run(event, np.tile(u, (steps, 1)), h),
+                                  run(PlantBlock(amv, {**base, "thruster_efficiency_2": 0.6}),
+                                      np.tile(u, (steps, 1)), h))
+    with pytest.raises(ValueError, match="parameter 'thruster_efficiency_2' must be within"):
+        event.set_parameter("thruster_efficiency_2", 2.0)
