@@ -230,3 +230,15 @@ pair_seeds: true
     out = capsys.readouterr().out
     assert "design: 16 cases, all valid; 16 to run" in out and out.count("to run") == 17
     assert not (tmp_path / "out").exists()
+
+
+def test_settling_time_metric() -> None:
+    from seafmu.sweep.worker import metric_value
+
+    t = np.round(np.arange(0, 10.01, 0.1), 10)
+    y = np.where(t < 1, 1.0, np.exp(-(t - 1)))  # a step at t = 1 s decaying: |y| <= 0.05 from t = 1 + 3.0
+    m = {"signal": "y", "minus": None, "angle": False, "after": 1.0, "before": None,
+         "metric": "settling_time", "tolerance": 0.05}
+    assert metric_value(m, t, {"y": y}) == pytest.approx(3.0)
+    assert np.isnan(metric_value({**m, "tolerance": 1e-6}, t, {"y": y}))  # never settles within the run
+    assert metric_value({**m, "metric": "max", "after": 2.0}, t, {"y": y}) == pytest.approx(np.exp(-1))

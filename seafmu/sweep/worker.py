@@ -26,8 +26,9 @@ def _wrap(x: np.ndarray) -> np.ndarray:
 
 
 def metric_value(m: dict[str, Any], time_s: np.ndarray, signals: dict[str, np.ndarray]) -> float:
-    """A study metric (a check's metric without a bound, or ``settling_time``: the first time from
-    which the signal stays within the tolerance band until the end) over its window."""
+    """A study metric (a check's metric without a bound, or ``settling_time``: the time from the
+    window's start (``after``) until the signal enters the tolerance band for good; NaN if it never
+    does) over its window."""
     y = np.asarray(signals[m["signal"]], dtype=float)
     if m.get("minus"):
         y = y - signals[m["minus"]]
@@ -43,9 +44,9 @@ def metric_value(m: dict[str, Any], time_s: np.ndarray, signals: dict[str, np.nd
     if kind == "settling_time":
         outside = np.flatnonzero(np.abs(w) > m["tolerance"])
         if outside.size == 0:
-            return float(t[0])
+            return 0.0
         last = outside[-1]
-        return float(t[last + 1]) if last + 1 < t.size else math.nan  # never settled: NaN
+        return float(t[last + 1] - m["after"]) if last + 1 < t.size else math.nan  # never settled: NaN
     return float({"max_abs": lambda: np.max(np.abs(w)), "final_abs": lambda: abs(w[-1]),
                   "rms": lambda: np.sqrt(np.mean(w**2)), "max": lambda: np.max(w),
                   "min": lambda: np.min(w), "mean": lambda: np.mean(w)}[kind]())
