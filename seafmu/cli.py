@@ -213,9 +213,12 @@ def main(argv: list[str] | None = None) -> int:
     from seafmu.emulate import scenario_plant_parameters
     from seafmu.hardware.cli import register as register_hardware
     from seafmu.identification.cli import register as register_identification
+    from seafmu.testplan.cli import add_parser as add_testplan
+    from seafmu.testplan.cli import run as run_testplan
 
     register_identification(sub)
     register_hardware(sub, scenario_params=scenario_plant_parameters)
+    add_testplan(sub).set_defaults(fn=run_testplan)
     args = parser.parse_args(argv)
     from seafmu.components.vessel_spec import VesselFileError
     from seafmu.export import ExportError
