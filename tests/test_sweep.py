@@ -242,3 +242,34 @@ def test_settling_time_metric() -> None:
     assert metric_value(m, t, {"y": y}) == pytest.approx(3.0)
     assert np.isnan(metric_value({**m, "tolerance": 1e-6}, t, {"y": y}))  # never settles within the run
     assert metric_value({**m, "metric": "max", "after": 2.0}, t, {"y": y}) == pytest.approx(np.exp(-1))
+
+
+def test_wilson_interval() -> None:
+    from seafmu.sweep.report import wilson
+
+    lo, hi = wilson(0, 10)
+    assert lo == pytest.approx(0.0, abs=1e-12) and hi == pytest.approx(0.2775, abs=1e-4)  # 1.96^2/(10+1.96^2)
+    lo, hi = wilson(50, 100)
+    assert lo == pytest.approx(0.4038, abs=1e-4) and hi == pytest.approx(0.5962, abs=1e-4)
+
+
+def test_sobol_indices_from_a_saltelli_design(tmp_path: Path) -> None:
+    """A value that depends on one input only: that input's first-order and total indices near 1,
+    the other's near 0 (SALib on the study's own Saltelli design)."""
+    from seafmu.sweep.report import sobol_table
+
+    study = """name: s
+scenario: base.yaml
+vary:
+  plant.current_speed: {uniform: [0.0 m/s, 0.2 m/s]}
+  plant.current_direction: {uniform: [0 deg, 90 deg]}
+sampling: {method: saltelli, samples: 256, seed: 1}
+"""
+    s = load_study(_write(tmp_path, 8, study), validate=False)
+    assert len(s.cases) == 256 * (2 + 2)
+    speed = np.array([c.inputs["plant.current_speed"] for c in s.cases])
+    frame = pd.DataFrame({"sample": [c.sample for c in s.cases], "check: drift": 3 * speed**2})
+    (row,) = sobol_table(s, frame, ["check: drift"])
+    s_speed, s_dir = ([float(x) for x in cell.split(" / ")] for cell in row[1:])
+    assert s_speed[0] > 0.9 and s_speed[1] > 0.9
+    assert abs(s_dir[0]) < 0.05 and abs(s_dir[1]) < 0.05
