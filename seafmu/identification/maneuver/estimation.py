@@ -10,6 +10,7 @@ import numpy as np
 
 from seafmu.components.vessel_spec import VesselSpec
 from seafmu.identification import arrowlm, fitting
+from seafmu.identification.effects import CatalogueEffect
 from seafmu.identification.maneuver.preprocessing import _Prepared
 from seafmu.identification.maneuver.simulation import _sim_residual, _SimSetup
 from seafmu.identification.maneuver.statistics import _autocorr_inflation
@@ -17,7 +18,6 @@ from seafmu.identification.maneuver.terms import (
     _Restoring,
     _sym,
     coriolis_force,
-    effect_names,
     maneuver_effect,
 )
 from seafmu.identification.trial import TrialError
@@ -195,7 +195,124 @@ def _output_error(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | None, 
 
     ``effect`` adds a diagnosis extension's parameters (``effect_names``), started at "absent";
     ``start`` (name -> value, e.g. a baseline fit's) replaces the LS start where it has a value.
+    An effect that must first be located (``maneuver_variants``: which thruster is lost) is
+    screened over its variants (``_screen_variants``); the ``LOCATE_KEEP`` most promising are
+    fitted and the one with the lowest cost is kept (the variants have the same number of
+    parameters, so also the lowest AIC). ``info["variants"]`` lists every variant, best first:
+    its screening score and, where fitted, its value, CI, cost and AIC.
     """
+    eff = maneuver_effect(effect) if effect is not None else None
+    variants = getattr(eff, "maneuver_variants", None)
+    if eff is None or variants is None:
+        return _output_error_one(vessel, prep, setup, ls, plant, added_mass, base, max_nfev, warnings, eff,
+                                 start)
+    if prep.thrust is None:
+        raise TrialError(f"effect '{effect}' needs one thrust column per thruster (thrust_1 ... or "
+                         "plant.thrust_i); this log gives the generalised force only")
+    if setup is None:
+        raise TrialError("too few samples for an output-error fit")
+    cands = variants(prep.thrust.shape[1])
+    screen = _screen_variants(vessel, prep, setup, ls, plant, base, start, cands)
+    scores, starts = screen if screen is not None else ([0.0] * len(cands), [{} for _ in cands])
+    order = sorted(range(len(cands)), key=lambda i: -scores[i])
+    keep = LOCATE_KEEP if screen is not None else len(cands)
+    fits = []
+    for i in order[:keep]:
+        w: list[str] = []
+        one = _output_error_one(vessel, prep, setup, ls, plant, added_mass, base, max_nfev, w, cands[i],
+                                {**(start or {}), **starts[i]})
+        fits.append((one, w, i))
+    fits.sort(key=lambda f: f[0][9]["oe_cost"])
+    best, w_best, _ = fits[0]
+    warnings += w_best
+    rows = []
+    for (_, _, _, names, p, _, ci, _, n_res, info), _, i in fits:
+        k = names[-1]  # the variant's own parameter comes last
+        # AIC from the fitting cost (sum of squared normalised residuals) and the parameter count
+        aic = n_res * float(np.log(max(2.0 * info["oe_cost"], 1e-300) / n_res)) + 2.0 * len(names)
+        rows.append({"param": k, "screen_score": scores[i], "value": float(p[-1]),
+                     "ci95": [float(ci[k][0]), float(ci[k][1])], "cost": info["oe_cost"], "aic": aic,
+                     "delta_aic": aic - (rows[0]["aic"] if rows else aic)})
+    rows += [{"param": cands[i].maneuver_params(vessel.dof)[-1], "screen_score": scores[i]}
+             for i in order[keep:]]
+    best[9]["variants"] = rows
+    return best
+
+
+# How many of an effect's variants (e.g. which thruster is lost) are fitted after the screening.
+LOCATE_KEEP = 3
+
+
+def _screen_variants(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup, ls: _LSResult,
+                     plant: dict[str, np.ndarray], base: str, start: dict[str, float] | None,
+                     cands: list[CatalogueEffect]) -> tuple[list[float], list[dict[str, float]]] | None:
+    """Each variant's score: the drop of the fitting cost after one joint Gauss-Newton step in the
+    damping diagonals and its own parameter, from the start model (the baseline's damping; the
+    vessel file's where that diverges) with the effect absent. Two batched simulations: the start
+    model with each damping diagonal and each variant's parameter moved (the Jacobian), then every
+    variant at its step (the cost). None when no start model can be simulated (fit them all)."""
+    d = vessel.dof
+    Ms, DLs, DQs = (_sym(ls.M), ls.D_L.copy(), ls.D_Q.copy()) if base == "ls" else (
+        plant["M"].copy(), plant["D_L"].copy(), plant["D_Q"].copy())
+    start = start or {}
+    for i in range(d):
+        DLs[i, i] = start.get(f"D_L[{i},{i}]", ls.D_L[i, i] if np.isfinite(ls.D_L[i, i]) else DLs[i, i])
+        DQs[i, i] = start.get(f"D_Q[{i},{i}]", ls.D_Q[i, i] if ls.D_Q[i, i] > 0 else DQs[i, i])
+        Ms[i, i] = start.get(f"M[{i},{i}]", Ms[i, i])
+    nu_rms = np.sqrt(np.mean(prep.nu_raw**2, axis=0))
+    h = 0.1
+    n_c, K = len(cands), 1 + 2 * d + len(cands)
+    terms = [c.maneuver_terms(np.array([[c.absent], [c.absent + h]])) for c in cands]
+    batch = {k: np.concatenate([np.repeat(terms[0][k][:1], 1 + 2 * d, axis=0)] + [t[k][1:] for t in terms])
+             for k in terms[0]}
+    for M0, DL0, DQ0 in ((Ms, DLs, DQs), (plant["M"], plant["D_L"], plant["D_Q"])):
+        sQ = np.maximum(np.abs(np.diag(DQ0)), 1e-3 * np.diag(plant["M"]))
+        sL = np.maximum(np.abs(np.diag(DL0)), sQ * nu_rms + 1e-6)
+        hd = 1e-2 * np.concatenate([sL, sQ])  # damping steps
+        M, DL, DQ = (np.repeat(a[None], K, axis=0) for a in (M0, DL0, DQ0))
+        for i in range(d):
+            DL[1 + i, i, i] += hd[i]
+            DQ[1 + d + i, i, i] += hd[d + i]
+        r = _sim_residual(setup, M, DL, DQ, **batch)[:, setup.mask]  # (K, compared samples, d)
+        if np.all(np.isfinite(r[: 1 + 2 * d])):
+            break
+    else:
+        return None
+    r = np.where(np.isfinite(r), r, 1e3)  # a variant's step that diverges: a large residual
+    r = r.reshape(K, -1)
+    r0 = r[0]
+    JD = ((r[1 : 1 + 2 * d] - r0) / hd[:, None]).T  # (rows, 2d)
+    steps = []
+    for k in range(1 + 2 * d, K):  # joint Gauss-Newton step in the damping and the variant's parameter
+        J = np.column_stack([JD, (r[k] - r0) / h])
+        cs = np.maximum(np.linalg.norm(J, axis=0), 1e-300)
+        steps.append(np.linalg.lstsq(J / cs, -r0, rcond=None)[0] / cs)
+    # the actual cost after each variant's step (nonlinear: a large loss is far from the baseline)
+    st = np.array(steps)
+    M, DL, DQ = (np.repeat(a[None], n_c, axis=0) for a in (M0, DL0, DQ0))
+    ii = np.arange(d)
+    DL[:, ii, ii] += st[:, :d]
+    DQ[:, ii, ii] += st[:, d : 2 * d]
+    terms = [c.maneuver_terms(np.array([[c.absent + st[j, -1]]])) for j, c in enumerate(cands)]
+    batch = {k: np.concatenate([t[k] for t in terms]) for k in terms[0]}
+    r1 = _sim_residual(setup, M, DL, DQ, **batch)[:, setup.mask].reshape(n_c, -1)
+    c0 = float(r0 @ r0)
+    scores, starts = [], []
+    for j, (c, x) in enumerate(zip(cands, r1, strict=True)):
+        ok = bool(np.all(np.isfinite(x))) and float(x @ x) < c0
+        scores.append(c0 - float(x @ x) if ok else 0.0)
+        # a step that lowers the cost is where the variant's fit starts (fewer iterations)
+        starts.append({**{f"D_L[{i},{i}]": float(DL[j, i, i]) for i in range(d)},
+                       **{f"D_Q[{i},{i}]": float(DQ[j, i, i]) for i in range(d)},
+                       c.maneuver_params(d)[-1]: float(c.absent + st[j, -1])} if ok else {})
+    return scores, starts
+
+
+def _output_error_one(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | None, ls: _LSResult,
+                      plant: dict[str, np.ndarray], added_mass: bool, base: str, max_nfev: int,
+                      warnings: list[str], eff: CatalogueEffect | None,
+                      start: dict[str, float] | None) -> tuple:
+    """One output-error fit, with the effect object ``eff``'s parameters (or none)."""
     # Over 80 lines: the parameter layout (model diagonals, added mass, effect parameters, one initial
     # state per segment) is shared by the closures mats/terms/residuals/jac; split apart, each would
     # need the same ten arrays passed in, and the layout would be written in two places.
@@ -219,16 +336,16 @@ def _output_error(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | None, 
     if start:
         p0 = [float(start.get(nm, v)) for nm, v in zip(names, p0, strict=True)]
     e0 = len(names)  # effect parameters follow the model's
-    enames = effect_names(effect, d)
+    enames = eff.maneuver_params(d) if eff is not None else []
     names += enames
-    absent = [maneuver_effect(effect).absent] * len(enames) if effect is not None else []
-    p0 = np.array([*p0, *absent], dtype=float)
+    absent = [eff.absent] * len(enames) if eff is not None else []
+    e_start = [(start or {}).get(nm, a) for nm, a in zip(enames, absent, strict=True)]  # absent if not given
+    p0 = np.array([*p0, *e_start], dtype=float)
     nu_abs = np.sqrt(np.mean(prep.nu_raw**2, axis=0))
     # parameter scales: a linear coefficient is worth its quadratic one times the rms speed
     sQ = np.maximum(np.abs(p0[d : 2 * d]), 1e-3 * np.diag(plant["M"]))
     sL = np.maximum(np.abs(p0[:d]), sQ * nu_abs + 1e-6)
     scales = [*sL, *sQ] + ([*np.abs(p0[2 * d : 3 * d])] if added_mass else [])
-    eff = maneuver_effect(effect) if effect is not None else None
     if eff is not None:
         scales += eff.maneuver_scales(prep.tau)
     scales = np.maximum(np.array(scales), 1e-9)
@@ -313,6 +430,6 @@ def _output_error(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | None, 
     M, DL, DQ = (a[0] for a in mats(p[None]))
     info = {"oe_nfev": int(sol.nfev), "oe_cost": float(sol.cost), "oe_start_from": start_from,
             "oe_start": dict(zip(names, p0.tolist(), strict=True)), "ci_inflation": infl,
-            "oe_status": sol.message, "effect": effect,
+            "oe_status": sol.message, "effect": None if eff is None else eff.name,
             "effect_terms": {k: v[0] for k, v in terms(p[None]).items()}}
     return M, DL, DQ, names, p, cov, ci, corr, r.size, info

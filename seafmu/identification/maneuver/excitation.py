@@ -97,6 +97,7 @@ def simulate_maneuver(
     data = ManeuverData(
         t=t, eta=out[:, i_eta], nu=out[:, i_nu], tau=out[:, i_thr] @ B.T, dof=d,
         source=f"simulated by PlantBlock ({vessel.name}, {duration:g} s, dt {dt:g} s, seed {seed})",
+        thrust=out[:, i_thr],
     )
     return data, cmds
 
