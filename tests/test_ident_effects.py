@@ -3,12 +3,16 @@ hooks, and adding an effect as one class (docs/architecture.md, "Identification:
 
 from __future__ import annotations
 
+import dataclasses
+from collections.abc import Callable
+from typing import Any, ClassVar
+
 import numpy as np
 import pytest
 
 from seafmu.components.vessel_spec import load_vessel
 from seafmu.identification import catalogue, effects
-from seafmu.identification.effects.base import REGISTRY, CatalogueEffect
+from seafmu.identification.effects.base import REGISTRY, CatalogueEffect, Hiding
 from seafmu.identification.maneuver import (
     MANEUVER_EFFECTS,
     add_sensor_noise,
@@ -25,7 +29,8 @@ def test_registry_holds_catalogue_effects_and_the_maneuver_family() -> None:
         assert obj.name == name
         for method in ("applies", "evidence"):
             assert getattr(type(obj), method) is not getattr(CatalogueEffect, method), (name, method)
-    assert MANEUVER_EFFECTS == catalogue.MANEUVER_EFFECTS == ("current", "constant_force")
+    assert MANEUVER_EFFECTS == catalogue.MANEUVER_EFFECTS
+    assert MANEUVER_EFFECTS[:2] == ("current", "constant_force")  # thruster_loss follows where it is
     assert effect_names("current", 3) == ["v_c_north", "v_c_east"]
     assert effect_names("constant_force", 6) == [f"F_0[{n}]" for n in "XYZKMN"]
     with pytest.raises(ValueError, match="maneuver effect must be one of current, constant_force"):
@@ -118,3 +123,125 @@ def test_start_grids_are_the_effects_own() -> None:
     s = {"V": 2.0, "U": 3.0, "F": 10.0, "M": 5.0, "Tv": 4.0, "h": 0.1, "dur": 30.0}
     grid = effects.get("time_delay").timeseries_start_grid(s, {}, None, [])
     assert [g["t_d"] for g in grid] == [0.05, 0.1, 0.2, 0.4, 0.8]
+
+
+# -- the 1-2-DOF families: the worked example of docs/architecture.md ----------------------------
+
+class _CubicDrag(CatalogueEffect):
+    """A drag term d_C v^3 (the worked example of docs/architecture.md): a table term, a state
+    force of the time-series loops, an equation-error column, a start grid and its hiding."""
+
+    name = "cubic_drag_example"
+    meaning = "drag term proportional to v^3 missing"
+    params = ("d_C",)
+    observable_in = "static force-speed, decay"
+    position = 99
+    units: ClassVar[dict[str, tuple[str, bool]]] = {"d_C": ("force", True)}
+    families = ("first", "second")
+    demo_kinds = ("decay", "static")
+
+    def applies(self, trial: object) -> str | None:
+        ok = getattr(trial, "kind", "") == "decay" or getattr(trial, "table", "") == "force_speed"
+        return None if ok else "needs a force-speed table or a decay"
+
+    def evidence(self, params: dict[str, float], trial: object) -> str:
+        return f"a cubic drag term d_C = {params.get('d_C', 0):.4g} is missing"
+
+    def static_term(self, x: np.ndarray, w: np.ndarray, v: dict[str, float]) -> np.ndarray | None:
+        return v["d_C"] * w**3 if "d_C" in v else None
+
+    def state_force(self, v: dict[str, float]) -> Callable[[float, float], float] | None:
+        d = v.get("d_C", 0.0)
+        return (lambda x, w: d * w * w * w) if d else None
+
+    def regressors(self, family: str, pos: np.ndarray | None, speed: np.ndarray, acc: np.ndarray,
+                   u: np.ndarray | None) -> dict[str, np.ndarray]:
+        return {"d_C": -speed**3}
+
+    def timeseries_start_grid(self, s: dict[str, float], vals: dict[str, float], model: Any,
+                              preps: list[Any]) -> list[dict[str, float]]:
+        return [{"d_C": x * s["F"] / s["V"] ** 3} for x in (0.1, 0.5)]
+
+    def hide(self, kind: str, amplitude: float) -> Hiding:
+        return Hiding(truth={"d_C": 150.0 if kind == "static" else 40.0})
+
+
+@pytest.fixture()
+def cubic(monkeypatch: pytest.MonkeyPatch) -> CatalogueEffect:
+    """The example registered and in the catalogue, for one test."""
+    effects.get("current")
+    obj = _CubicDrag()
+    monkeypatch.setitem(REGISTRY, obj.name, obj)
+    monkeypatch.setitem(catalogue.CATALOGUE, obj.name, catalogue.Effect(obj.name, obj.meaning, obj.params,
+                                                                        obj.observable_in))
+    return obj
+
+
+@pytest.mark.parametrize("kind", ["decay", "static"])
+def test_a_new_static_and_time_series_effect_is_one_class(cubic: CatalogueEffect, kind: str) -> None:
+    """Hidden by its own hide(), fitted by the fitters' sum of terms, named by the diagnosis; its unit
+    comes from its object. Without it in the data the diagnosis does not name it."""
+    from seafmu.identification.diagnosis import diagnose
+    from seafmu.identification.synthetic import demo_trial
+
+    trial = demo_trial(cubic.name, kind, seed=3)
+    d = diagnose(trial)
+    assert d.effect == cubic.name, d.evidence
+    c = next(c for c in d.candidates if c.effect == cubic.name)
+    truth = 150.0 if kind == "static" else 40.0
+    lo, hi = c.fit.ci95["d_C"]
+    assert lo < truth < hi or abs(c.fit.params["d_C"] / truth - 1) < 0.1
+    assert catalogue.param_unit("d_C", trial) == "N"
+    clean = diagnose(demo_trial(None, kind, seed=3))
+    assert clean.effect != cubic.name
+
+
+def test_catalogue_is_built_from_the_objects_in_the_interface_order() -> None:
+    """The names and order reports and JSON use, each entry the object's own."""
+    first = ["linear_damping", "quadratic_damping", "coulomb_friction", "current", "constant_force",
+             "added_mass", "thrust_quadratic", "thrust_asymmetry", "deadband", "actuator_lag", "time_delay",
+             "saturation", "nonlinear_restoring", "coupling"]
+    assert list(catalogue.CATALOGUE)[:14] == first
+    for name, entry in catalogue.CATALOGUE.items():
+        obj = effects.get(name)
+        assert (entry.meaning, entry.params, entry.observable_in) == (
+            obj.meaning, obj.params, obj.observable_in)
+        assert entry.meaning and entry.params
+
+
+def test_units_and_hiding_come_from_the_objects() -> None:
+    """param_unit asks the owner of an effect parameter; demo and plant kinds follow the objects."""
+    from seafmu.identification import plant_trials
+    from seafmu.identification.synthetic import DEMO_EFFECTS, demo_trial
+
+    step = demo_trial("deadband", seed=0)
+    assert catalogue.param_unit("n_0", step) == "rev/s"
+    assert catalogue.param_unit("F_0", step) == "N"
+    assert catalogue.param_unit("k", step) == "N/rps"
+    decay = demo_trial("linear_damping", seed=0)
+    assert catalogue.param_unit("d_L", decay) == "N/(m/s)"
+    no_mass = dataclasses.replace(decay, constants={})
+    assert catalogue.param_unit("d_L", no_mass) == "N/(m/s) per unit inertia"
+    assert catalogue.param_unit("c3", demo_trial("nonlinear_restoring", seed=0)) == "N·m/rad³"
+    assert catalogue.param_unit("Y_r", demo_trial("coupling", seed=0)) == "N/(rad/s)"
+    for obj in effects.all_effects():
+        for kind in obj.demo_kinds:
+            assert obj.name in DEMO_EFFECTS[kind]
+        if obj.plant is not None:
+            assert plant_trials.DESIGN[obj.name] == obj.plant
+        assert not (obj.plant and obj.plant_missing)
+
+
+def test_no_effect_name_switches_in_the_fitters() -> None:
+    """The fitters, the generators and the diagnosis sum the objects' terms: no effect named in code."""
+    import re
+    from pathlib import Path
+
+    import seafmu.identification as ident
+
+    root = Path(ident.__file__).parent
+    names = "|".join(catalogue.CATALOGUE)
+    pattern = re.compile(rf"effect\s*(==|!=|in)\s*[\(\[{{]?\s*\"({names})\"")
+    for mod in ("static", "timeseries", "synthetic", "plant_trials", "diagnosis", "catalogue"):
+        text = (root / f"{mod}.py").read_text()
+        assert not pattern.search(text), mod

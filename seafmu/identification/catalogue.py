@@ -13,7 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from seafmu.identification import effects
-from seafmu.identification.trial import ROTATIONAL, Trial
+from seafmu.identification.effects.base import is_rpm, quantity_unit
+from seafmu.identification.trial import Trial
 
 
 @dataclass(frozen=True)
@@ -24,35 +25,14 @@ class Effect:
     observable_in: str
 
 
-CATALOGUE: dict[str, Effect] = {e.name: e for e in (
-    Effect("linear_damping", "drag term proportional to v missing", ("d_L",),
-           "static force-speed, decay, step, 2nd-order decay whose baseline lacks the linear term"),
-    Effect("quadratic_damping", "drag term proportional to v|v| missing", ("d_Q",),
-           "static force-speed, decay, step, 2nd-order decay whose baseline lacks the quadratic term"),
-    Effect("coulomb_friction", "constant-magnitude force opposing motion (bearing, ground, seal)", ("f_c",),
-           "static force-speed, decay, step, 2nd-order decay, pendulum"),
-    Effect("current", "the water moves: damping acts on v - v_c", ("v_c",),
-           "static force-speed, decay, step with quadratic damping and motion ahead and astern (to tell "
-           "it from a constant force); maneuver (NED current v_c_north, v_c_east)"),
-    Effect("constant_force", "constant external force/moment or offset (wind, tether, trim)", ("F_0",),
-           "every kind except sway_yaw (maneuver: one per DOF, F_0[X] ...)"),
-    Effect("added_mass", "inertia differs from the rigid-body value", ("m_a",),
-           "step with known force (force input or known thrust coefficient) and known mass; "
-           "2nd-order decay with known stiffness and mass"),
-    Effect("thrust_quadratic", "thrust proportional to n|n| rather than n", ("k_q",),
-           "thrust-rpm table, step with shaft-speed command, linear thrust law"),
-    Effect("thrust_asymmetry", "reverse thrust efficiency differs from forward", ("eta_rev",),
-           "thrust-rpm table, step with shaft-speed command, commands of both signs"),
-    Effect("deadband", "no thrust below a threshold speed", ("n_0",),
-           "thrust-rpm table, step with shaft-speed command"),
-    Effect("actuator_lag", "first-order lag between command and thrust", ("T_lag",), "step"),
-    Effect("time_delay", "pure transport delay between command and response", ("t_d",), "step"),
-    Effect("saturation", "thrust or speed capped", ("u_sat",), "thrust-rpm table, step"),
-    Effect("nonlinear_restoring", "restoring not proportional to the angle (sin or cubic term)", ("c3",),
-           "2nd-order decay with a linear restoring baseline"),
-    Effect("coupling", "cross-coupling between DOFs (sway-yaw Y_r, N_v)", ("Y_r", "N_v"),
-           "sway_yaw step or decay with v and r measured"),
-)}
+def _build() -> dict[str, Effect]:
+    """The catalogue from the registered effect objects, in their declared order."""
+    objs = sorted(effects.all_effects(), key=lambda o: (o.position, o.name))
+    return {o.name: Effect(o.name, o.meaning, tuple(o.params), o.observable_in) for o in objs}
+
+
+# name -> entry, in the catalogue's order (the effects' ``position``): reports, JSON and tests use it.
+CATALOGUE: dict[str, Effect] = _build()
 
 NAMES = tuple(CATALOGUE)
 
@@ -105,33 +85,26 @@ def null_value(param: str, trial: Trial) -> float:
 
 # -- units and words ------------------------------------------------------------------------------
 
+# Units of the baseline models' own parameters (an effect's parameters: its object's ``unit``).
+_PENDULUM_UNITS = {"alpha": "1/s²", "beta": "1/s", "gamma": "1/rad"}
+_SWAY_YAW_UNITS = {"Y_v": "N/(m/s)", "N_r": "N·m/(rad/s)"}
+_BASELINE_UNITS = {"M": ("inertia", False), "c": ("stiffness", True)}
+
+
 def param_unit(name: str, trial: Trial) -> str:
-    rot = trial.dof in ROTATIONAL
-    F = "N·m" if rot else "N"
-    V = "rad/s" if rot else "m/s"
-    X = "rad" if rot else "m"
-    per_unit = trial.kind in ("decay", "step", "decay2") and "mass" not in trial.constants
-    if trial.kind == "pendulum":
-        units = {"alpha": "1/s²", "beta": "1/s", "gamma": "1/rad", "f_c": "rad/s²", "F_0": "rad/s²"}
-        return units.get(name, "")
-    if trial.dof == "sway_yaw":
-        return {"Y_v": "N/(m/s)", "Y_r": "N/(rad/s)", "N_v": "N·m/(m/s)", "N_r": "N·m/(rad/s)"}.get(name, "")
-    rpm = (trial.kind == "static" and trial.table == "thrust_rpm") or trial.input_kind == "rpm"
-    table = {
-        "M": "kg·m²" if rot else "kg", "m_a": "kg·m²" if rot else "kg",
-        "d_L": f"{F}/({V})", "d_Q": f"{F}/({V})²", "f_c": F, "F_0": F, "v_c": V,
-        "c": f"{F}/{X}", "c3": f"{F}/{X}³",
-        "k": "N/rps²" if trial.thrust_law == "quadratic" and rpm else "N/rps",
-        "k_q": "N/rps²", "eta_rev": "1", "n_0": "rev/s" if rpm else F, "u_sat": "rev/s" if rpm else F,
-        "T_lag": "s", "t_d": "s",
-    }
-    if trial.kind == "static" and trial.table == "thrust_rpm":
-        table["F_0"] = "N"
-    unit = table.get(name, "")
-    if per_unit and name in ("d_L", "d_Q", "f_c", "F_0", "c", "c3", "k", "k_q", "m_a", "u_sat", "n_0") and (
-            name not in ("n_0", "u_sat") or not rpm):
-        unit = f"{unit} per unit inertia"
-    return unit
+    """The unit of a fitted parameter in this trial ("" where it has none to state)."""
+    if trial.kind == "pendulum" and name in _PENDULUM_UNITS:
+        return _PENDULUM_UNITS[name]
+    if trial.dof == "sway_yaw" and name in _SWAY_YAW_UNITS:
+        return _SWAY_YAW_UNITS[name]
+    if name == "k":
+        quadratic = trial.thrust_law == "quadratic" and is_rpm(trial)
+        return quantity_unit("thrust_n2" if quadratic else "thrust_n", trial, True)
+    if name in _BASELINE_UNITS:
+        quantity, per_inertia = _BASELINE_UNITS[name]
+        return quantity_unit(quantity, trial, per_inertia)
+    obj = effects.owner(name)
+    return obj.unit(name, trial) if obj is not None else ""
 
 
 def _fmt(x: float) -> str:

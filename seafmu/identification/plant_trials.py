@@ -16,11 +16,15 @@ documented in docs/identification.md, section "Hidden effects in plant-made tria
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import numpy as np
 
 from seafmu.components.plant import PlantBlock
 from seafmu.components.vessel_spec import VesselSpec, load_vessel
+from seafmu.identification import effects
+from seafmu.identification.catalogue import CATALOGUE
+from seafmu.identification.effects.base import Hiding, replace_matrix, with_thrusters
 from seafmu.identification.trial import Run, Trial, make_trial
 
 # kind -> what the trial is (vessel, DOF, experiment)
@@ -33,54 +37,32 @@ KINDS: dict[str, str] = {
                       "r from the 20 Hz gyro, 0.002 rad/s)",
 }
 
-# effect -> (trial kind, how the plant carries it)
-DESIGN: dict[str, tuple[str, str]] = {
-    "linear_damping": ("surge_decay", "vessel D_L[0][0] = 8 N/(m/s); trial baseline: quadratic"),
-    "quadratic_damping": ("surge_decay", "the shipped AMV (D_Q = 34.08); trial baseline: linear"),
-    "current": ("surge_decay", "plant current_speed 0.1 m/s towards north, heading north; "
-                               "runs ahead and astern"),
-    "constant_force": ("heave_decay", "the shipped Minerva 2: buoyancy exceeds weight by 30 N"),
-    "added_mass": ("surge_step", "vessel M_A[0][0] = 22 kg; the trial states 40 kg + 10 kg (file) and k"),
-    "thrust_quadratic": ("surge_step", "thruster law quadratic, k = 6 N/rps^2 per screw; trial: linear law"),
-    "thrust_asymmetry": ("surge_step", "thruster k_reverse = 0.65 k_forward"),
-    "actuator_lag": ("surge_step", "the shipped AMV shaft lag, time_constant 0.25 s"),
-    "saturation": ("surge_step", "thruster n_max = 1.4 rev/s (commands up to 2.2), both x amplitude"),
-    "nonlinear_restoring": ("pitch_decay", "Minerva 2 trimmed neutral (righting moment BG W sin(theta)); "
-                                           "trial restoring: linear"),
-    "coupling": ("sway_yaw_decay", "vessel D_L[1][2] = D_L[2][1] = 8 (Y_r = N_v = -8)"),
-}
 
-# effects the plant model has no term for: their hidden-effect tests use demo_trial's data
-NOT_EXPRESSIBLE: dict[str, str] = {
-    "coulomb_friction": "the vessel model has no friction term (damping is D_L nu + D_Q |nu| nu)",
-    "deadband": "the thruster model maps every non-zero shaft speed to thrust (T = k n or k n|n|)",
-    "time_delay": "commands act at the next plant step; there is no transport delay",
-}
+def _plant_design() -> tuple[dict[str, tuple[str, str]], dict[str, str]]:
+    """From the effect objects: effect -> (trial kind, how the plant carries it), and the effects
+    the plant model has no term for (their hidden-effect tests use demo_trial's data)."""
+    design: dict[str, tuple[str, str]] = {}
+    missing: dict[str, str] = {}
+    for obj in effects.all_effects():
+        if obj.name not in CATALOGUE:
+            continue
+        if obj.plant is not None:
+            design[obj.name] = obj.plant
+        elif obj.plant_missing is not None:
+            missing[obj.name] = obj.plant_missing
+    return design, missing
+
+
+# effect -> (trial kind, how the plant carries it); effects the plant cannot express, and why
+DESIGN, NOT_EXPRESSIBLE = _plant_design()
 
 # kind -> effects plant_trial hides in it (effect=None gives the clean trial of any kind)
 EFFECTS: dict[str, set[str]] = {k: {e for e, (kk, _) in DESIGN.items() if kk == k} for k in KINDS}
 
 AMV_SURGE_MASS = 40.0  # rigid-body surge mass of the AMV file (M_RB[0][0])
 AMV_SURGE_ADDED = 10.0  # the file's surge added mass (M_A[0][0])
-AMV_K = 12.63  # thrust coefficient of each screw (N/rps)
 FAST_DRIVE = 0.02  # s: shaft time constant of an "ideal" drive (clean step trials: no lag to find)
 SURGE_HOLD = 3000.0  # N s/m: linear surge damping standing in for a rig that holds surge (sway-yaw trials)
-
-
-def _replace_matrix(m: np.ndarray, entries: dict[tuple[int, int], float]) -> np.ndarray:
-    out = np.array(m, dtype=float)
-    for (i, j), v in entries.items():
-        out[i, j] = v
-    return out
-
-
-def _with_thrusters(spec: VesselSpec, **changes: float | str) -> VesselSpec:
-    """The spec with every thruster's field(s) set (numbers broadcast over the thrusters)."""
-    th = spec.thrusters
-    kw: dict[str, object] = {}
-    for name, value in changes.items():
-        kw[name] = value if isinstance(value, str) else np.full(th.count, float(value))
-    return dataclasses.replace(spec, thrusters=dataclasses.replace(th, **kw))
 
 
 def record(spec: VesselSpec, params: dict[str, float], commands: np.ndarray, h: float,
@@ -118,28 +100,31 @@ def _decay_runs(spec: VesselSpec, channel: str, starts: list[dict[str, float]], 
     return runs
 
 
+def _hiding(effect: str | None, kind: str, amplitude: float) -> Hiding:
+    """The effect object's hiding of itself in a plant trial of ``kind`` (clean: nothing)."""
+    if effect is None:
+        return Hiding()
+    if kind not in KINDS or effect not in EFFECTS[kind]:
+        raise ValueError(f"plant: '{effect}' is not hidden in a {kind.replace('_', ' ')} trial")
+    obj = effects.get(effect)
+    assert obj is not None, effect
+    return obj.hide_in_plant(kind, amplitude)
+
+
+def _carry(spec: VesselSpec, hid: Hiding) -> VesselSpec:
+    """The vessel file carrying the hidden effect."""
+    return hid.vessel(spec) if hid.vessel is not None else spec
+
+
 def surge_step_vessel(effect: str | None, amplitude: float = 1.0) -> tuple[VesselSpec, dict[str, float]]:
     """The AMV spec of a surge step trial with `effect` in it, and the constants the trial states.
 
     Every step trial uses a fast drive (FAST_DRIVE) unless the effect is the shaft lag itself:
     the shipped 0.25 s lag IS the catalogue's actuator_lag, so a clean step trial must not have it.
     """
-    spec = _with_thrusters(load_vessel("amv_osf"), time_constant=FAST_DRIVE)
-    constants = {"mass": AMV_SURGE_MASS + AMV_SURGE_ADDED}
-    if effect == "added_mass":
-        spec = dataclasses.replace(spec, M_A=_replace_matrix(spec.M_A, {(0, 0): 22.0}))
-        constants = {"mass": AMV_SURGE_MASS, "added_mass": AMV_SURGE_ADDED, "thrust_coefficient": 2 * AMV_K}
-    elif effect == "thrust_quadratic":
-        spec = _with_thrusters(spec, law="quadratic", k_forward=6.0, k_reverse=6.0)
-    elif effect == "thrust_asymmetry":
-        spec = _with_thrusters(spec, k_reverse=0.65 * AMV_K)
-    elif effect == "actuator_lag":
-        spec = _with_thrusters(spec, time_constant=0.25)
-    elif effect == "saturation":
-        spec = _with_thrusters(spec, n_max=1.4 * amplitude)
-    elif effect is not None:
-        raise ValueError(f"plant: '{effect}' is not hidden in a surge step trial")
-    return spec, constants
+    hid = _hiding(effect, "surge_step", amplitude)
+    spec = _carry(with_thrusters(load_vessel("amv_osf"), time_constant=FAST_DRIVE), hid)
+    return spec, {"mass": AMV_SURGE_MASS + AMV_SURGE_ADDED, **hid.constants}
 
 
 def plant_trial(effect: str | None, kind: str | None = None, seed: int = 0, noise_scale: float = 1.0,
@@ -149,10 +134,9 @@ def plant_trial(effect: str | None, kind: str | None = None, seed: int = 0, nois
     noise_scale multiplies the vessel file's sensor noise; seed picks the noise (each run of the
     trial uses its own seed derived from it); amplitude scales the excitation (initial speeds or
     angles, command levels; a saturation cap scales with it so it stays active). hold_surge=False
-    lets the sway-yaw hull move in surge (see the sway_yaw_decay comment below).
+    lets the sway-yaw hull move in surge (see ``_sway_yaw_decay``). How each effect is carried is
+    its object's ``hide_in_plant``.
     """
-    # Over 80 lines: one short branch per plant trial kind (vessel, DOF, experiment), kept together so
-    # the trial designs of docs/identification.md read side by side.
     A = float(amplitude)
     if effect is not None and effect in NOT_EXPRESSIBLE:
         raise ValueError(f"plant: '{effect}' cannot be hidden in the plant ({NOT_EXPRESSIBLE[effect]})")
@@ -168,68 +152,74 @@ def plant_trial(effect: str | None, kind: str | None = None, seed: int = 0, nois
     prov = f"PlantBlock, {KINDS[kind]}, noise_scale {noise_scale:g}, seed {seed}"
     if effect:
         prov += f"; hidden: {effect} ({DESIGN[effect][1]})"
-    base = {"noise_scale": noise_scale}
+    hid = _hiding(effect, kind, A)
+    base = {"noise_scale": noise_scale, **hid.plant}
+    trial_kw = {"name": name, "provenance": prov}
+    if kind == "sway_yaw_decay":
+        return _sway_yaw_decay(hid, A, base, seed, hold_surge, trial_kw)
+    return _KIND_MAKERS[kind](hid, A, base, seed, trial_kw)
 
-    if kind in ("surge_decay", "surge_step"):
-        spec = load_vessel("amv_osf")
-        M_total = AMV_SURGE_MASS + AMV_SURGE_ADDED
-        if kind == "surge_decay":
-            baseline = {"linear_damping": "quadratic", "quadratic_damping": "linear"}.get(effect or "",
-                                                                                         "linear_quadratic")
-            starts = [1.0 * A, 0.6 * A]
-            if effect == "linear_damping":
-                spec = dataclasses.replace(spec, D_L=_replace_matrix(spec.D_L, {(0, 0): 8.0}))
-            if effect == "current":
-                base |= {"current_speed": 0.1, "current_direction": 0.0}
-                starts = [1.0 * A, -1.0 * A, 0.7 * A]
-            runs = _decay_runs(spec, "u", [{"u_0": u0} for u0 in starts], 25.0, base, seed)
-            return make_trial("decay", runs, dof="surge", baseline=baseline, constants={"mass": M_total},
-                              name=name, provenance=prov)
-        # surge steps: both screws get the same command; the logged input is the command (rev/s)
-        spec, constants = surge_step_vessel(effect, A)
-        levels = [(1.0, 2.0, 0.5, -1.0, -2.0, 0.0), (1.5, 0.8, -1.5, 2.2, 0.3, -0.6)]
-        h = _sensor_period(spec, "u")
-        runs = []
-        for i, lv in enumerate(levels):
-            t = np.arange(0.0, 48.0 + 1e-9, h)
-            n = A * np.array(lv)[np.minimum((t // 8).astype(int), len(lv) - 1)]
-            t, y = record(spec, {**base, "seed": seed + 1000 * i}, np.column_stack([n, n]), h, ["u"])
-            runs.append(Run(f"steps{i + 1}", y[:, 0], t, n))
-        return make_trial("step", runs, dof="surge", baseline="linear_quadratic", constants=constants,
-                          name=name, provenance=prov, input_kind="rpm")
 
-    if kind == "heave_decay":
-        spec = load_vessel("minerva2")
-        if effect is None:  # neutrally buoyant: no constant force to find
-            spec = _neutral(spec)
-        mass = float(spec.M_RB[2, 2] + spec.M_A[2, 2])
-        runs = _decay_runs(spec, "w", [{"w_0": w0 * A} for w0 in (0.3, -0.3, 0.2)], 40.0, base, seed, 0.02)
-        return make_trial("decay", runs, dof="heave", baseline="linear_quadratic", constants={"mass": mass},
-                          name=name, provenance=prov)
+TrialKw = dict[str, Any]
 
-    if kind == "pitch_decay":
-        # Trimmed to neutral buoyancy, as for a decay test: with the shipped 30 N the ROV rises
-        # while it pitches, and the Munk moment of that rise stiffens pitch by ~3 % and makes the
-        # restoring look far more nonlinear than the sin law (c3 ~ -1100 instead of -c/6 ~ -229).
-        spec = _neutral(load_vessel("minerva2"))
-        inertia = float(spec.M_RB[4, 4] + spec.M_A[4, 4])
-        # The largest release is the last run, the held-out one: the sin law shows at large angles.
-        starts = [{"pitch_0": a * A} for a in (0.8, -0.9, 1.0)]
-        runs = _decay_runs(spec, "pitch", starts, 30.0, base, seed, 0.02)
-        return make_trial("decay2", runs, dof="pitch", baseline="linear_quadratic",
-                          constants={"mass": inertia}, restoring="linear" if effect else "sin",
-                          name=name, provenance=prov)
 
-    # sway_yaw_decay: the AMV with linear sway/yaw damping (the trial model is linear), surge held
-    # by the rig. On a free hull the centripetal surge force -r (m22 v + m26 r) makes u, and u
-    # feeds Coriolis/Munk terms back into Y and N: a real sway-yaw coupling that the plant has
-    # even with zero off-diagonal damping (the diagnosis names it; docs/identification.md).
+def _surge_decay(hid: Hiding, A: float, base: dict[str, float], seed: int, kw: TrialKw) -> Trial:
+    spec = _carry(load_vessel("amv_osf"), hid)
+    starts = [s * A for s in (hid.starts or (1.0, 0.6))]
+    runs = _decay_runs(spec, "u", [{"u_0": u0} for u0 in starts], 25.0, base, seed)
+    return make_trial("decay", runs, dof="surge", baseline=hid.baseline or "linear_quadratic",
+                      constants={"mass": AMV_SURGE_MASS + AMV_SURGE_ADDED}, **kw)
+
+
+def _surge_step(hid: Hiding, A: float, base: dict[str, float], seed: int, kw: TrialKw) -> Trial:
+    # both screws get the same command; the logged input is the command (rev/s)
+    spec = _carry(with_thrusters(load_vessel("amv_osf"), time_constant=FAST_DRIVE), hid)
+    constants = {"mass": AMV_SURGE_MASS + AMV_SURGE_ADDED, **hid.constants}
+    levels = hid.levels or ((1.0, 2.0, 0.5, -1.0, -2.0, 0.0), (1.5, 0.8, -1.5, 2.2, 0.3, -0.6))
+    h = _sensor_period(spec, "u")
+    runs = []
+    for i, lv in enumerate(levels):
+        t = np.arange(0.0, 48.0 + 1e-9, h)
+        n = A * np.array(lv)[np.minimum((t // 8).astype(int), len(lv) - 1)]
+        t, y = record(spec, {**base, "seed": seed + 1000 * i}, np.column_stack([n, n]), h, ["u"])
+        runs.append(Run(f"steps{i + 1}", y[:, 0], t, n))
+    return make_trial("step", runs, dof="surge", baseline=hid.baseline or "linear_quadratic",
+                      constants=constants, input_kind="rpm", **kw)
+
+
+def _heave_decay(hid: Hiding, A: float, base: dict[str, float], seed: int, kw: TrialKw) -> Trial:
+    # neutrally buoyant, so the clean trial has no constant force to find
+    spec = _carry(_neutral(load_vessel("minerva2")), hid)
+    mass = float(spec.M_RB[2, 2] + spec.M_A[2, 2])
+    runs = _decay_runs(spec, "w", [{"w_0": w0 * A} for w0 in (0.3, -0.3, 0.2)], 40.0, base, seed, 0.02)
+    return make_trial("decay", runs, dof="heave", baseline=hid.baseline or "linear_quadratic",
+                      constants={"mass": mass}, **kw)
+
+
+def _pitch_decay(hid: Hiding, A: float, base: dict[str, float], seed: int, kw: TrialKw) -> Trial:
+    # Trimmed to neutral buoyancy, as for a decay test: with the shipped 30 N the ROV rises
+    # while it pitches, and the Munk moment of that rise stiffens pitch by ~3 % and makes the
+    # restoring look far more nonlinear than the sin law (c3 ~ -1100 instead of -c/6 ~ -229).
+    spec = _carry(_neutral(load_vessel("minerva2")), hid)
+    inertia = float(spec.M_RB[4, 4] + spec.M_A[4, 4])
+    # The largest release is the last run, the held-out one: the sin law shows at large angles.
+    starts = [{"pitch_0": a * A} for a in (0.8, -0.9, 1.0)]
+    runs = _decay_runs(spec, "pitch", starts, 30.0, base, seed, 0.02)
+    return make_trial("decay2", runs, dof="pitch", baseline=hid.baseline or "linear_quadratic",
+                      constants={"mass": inertia}, restoring=hid.trial_restoring or "sin", **kw)
+
+
+def _sway_yaw_decay(hid: Hiding, A: float, base: dict[str, float], seed: int, hold_surge: bool,
+                    kw: TrialKw) -> Trial:
+    # The AMV with linear sway/yaw damping (the trial model is linear), surge held by the rig. On a
+    # free hull the centripetal surge force -r (m22 v + m26 r) makes u, and u feeds Coriolis/Munk
+    # terms back into Y and N: a real sway-yaw coupling that the plant has even with zero
+    # off-diagonal damping (the diagnosis names it; docs/identification.md).
     spec = load_vessel("amv_osf")
     DL = {(0, 0): SURGE_HOLD if hold_surge else float(spec.D_L[0, 0]), (1, 1): 60.0, (2, 2): 20.0}
-    if effect == "coupling":
-        DL |= {(1, 2): 8.0, (2, 1): 8.0}
     DQ = {(1, 1): 0.0, (2, 2): 0.0, (1, 2): 0.0, (2, 1): 0.0}
-    spec = dataclasses.replace(spec, D_L=_replace_matrix(spec.D_L, DL), D_Q=_replace_matrix(spec.D_Q, DQ))
+    spec = dataclasses.replace(spec, D_L=replace_matrix(spec.D_L, DL), D_Q=replace_matrix(spec.D_Q, DQ))
+    spec = _carry(spec, hid)
     h = _sensor_period(spec, "v")
     n = round(12.0 / h) + 1
     cmds = np.zeros((n, spec.thrusters.count))
@@ -241,8 +231,12 @@ def plant_trial(effect: str | None, kind: str | None = None, seed: int = 0, nois
     M = spec.M_RB + spec.M_A
     constants = {"mass": float(M[1, 1]), "inertia": float(M[2, 2]),
                  "mass_coupling": float(0.5 * (M[1, 2] + M[2, 1]))}
-    return make_trial("decay", runs, dof="sway_yaw", baseline="linear", constants=constants, name=name,
-                      provenance=prov)
+    return make_trial("decay", runs, dof="sway_yaw", baseline=hid.baseline or "linear", constants=constants,
+                      **kw)
+
+
+_KIND_MAKERS = {"surge_decay": _surge_decay, "surge_step": _surge_step, "heave_decay": _heave_decay,
+                "pitch_decay": _pitch_decay}
 
 
 def _neutral(spec: VesselSpec) -> VesselSpec:

@@ -12,8 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import least_squares
 
-from seafmu.identification import effects
-from seafmu.identification.catalogue import CATALOGUE
+from seafmu.identification import effects, timeseries
 from seafmu.identification.fitting import (
     FitResult,
     aic_bic,
@@ -29,6 +28,15 @@ _NONLINEAR = set(effects.static_grids(1.0))
 _BOUNDS = effects.bounds("static")  # each effect's own (effects/<name>.py)
 
 
+def _stages() -> list[effects.CatalogueEffect]:
+    return timeseries._stages()
+
+
+def _nonlinear() -> set[str]:
+    """The parameters the table models are nonlinear in (the registered effects' _NONLINEAR)."""
+    return set(effects.static_grids(1.0))
+
+
 @dataclass
 class StaticModel:
     table: str  # force_speed | thrust_rpm
@@ -38,22 +46,22 @@ class StaticModel:
     effect: str | None = None
 
     def predict(self, x: np.ndarray, theta: np.ndarray | None = None) -> np.ndarray:
+        """The table's law: the input through the effects' ``static_input`` (current, deadband,
+        saturation), a thrust table's thrust law, plus every effect's ``static_term``."""
         v = dict(self.values)
         if theta is not None:
             v.update(zip(self.free, theta, strict=True))
-        if self.table == "force_speed":
-            w = x - v.get("v_c", 0.0)
-            return (v.get("d_L", 0.0) * w + v.get("d_Q", 0.0) * w * np.abs(w)
-                    + v.get("f_c", 0.0) * np.sign(x) + v.get("F_0", 0.0))
-        n = x
-        n0 = v.get("n_0", 0.0)
-        if n0 > 0:
-            n = np.sign(n) * np.maximum(np.abs(n) - n0, 0.0)
-        if "u_sat" in v:
-            n = np.clip(n, -v["u_sat"], v["u_sat"])
-        g = n if self.law == "linear" else n * np.abs(n)
-        gain = np.where(n < 0, 1.0 + v.get("eta_rev", 0.0), 1.0)
-        return v.get("k", 0.0) * g * gain + v.get("k_q", 0.0) * n * np.abs(n) + v.get("F_0", 0.0)
+        w = x
+        for obj in _stages():
+            w = obj.static_input(w, v)
+        out = timeseries.thrust(v, self.law, w) if self.table == "thrust_rpm" else None
+        for obj in effects.all_effects():
+            term = obj.static_term(x, w, v)
+            if term is not None:
+                out = term if out is None else out + term
+        if out is None:
+            return np.zeros_like(np.asarray(x, dtype=float))
+        return out + np.zeros_like(x) if np.ndim(out) == 0 else out
 
     def design(self, x: np.ndarray) -> np.ndarray:
         """Regressor matrix when the model is linear in its free parameters."""
@@ -68,7 +76,8 @@ class StaticModel:
 
     @property
     def linear(self) -> bool:
-        return not (set(self.free) & _NONLINEAR) and "u_sat" not in self.values and not self.values.get("n_0")
+        """Linear in its free parameters (none of them has a start grid): solved exactly."""
+        return not (set(self.free) & _nonlinear())
 
 
 def table_data(trial: Trial) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -99,10 +108,12 @@ def baseline_model(trial: Trial) -> StaticModel:
 
 
 def extend(model: StaticModel, effect: str, trial: Trial) -> StaticModel:
-    params = CATALOGUE[effect].params
-    m = StaticModel(model.table, model.law, [*model.free, *params], dict(model.values), effect)
+    """The table model with the effect's parameters free (and the values it fixes)."""
     obj = effects.get(effect)
-    if obj is not None and not obj.start_at_absent:  # e.g. a saturation cap: set, but inactive
+    assert obj is not None, effect
+    m = StaticModel(model.table, model.law, [*model.free, *obj.params],
+                    {**model.values, **obj.fixed_values(trial)}, effect)
+    if not obj.start_at_absent:  # e.g. a saturation cap: set, but inactive
         m.values.update(obj.absent_values(trial))
     return m
 
@@ -114,8 +125,9 @@ def _solve(model: StaticModel, x: np.ndarray, y: np.ndarray, start: np.ndarray |
         A = model.design(x)
         theta, *_ = np.linalg.lstsq(A, y, rcond=None)
         return theta, A
-    lo = np.array([_BOUNDS.get(p, (-np.inf, np.inf))[0] for p in model.free])
-    hi = np.array([_BOUNDS.get(p, (-np.inf, np.inf))[1] for p in model.free])
+    bounds = effects.bounds("static")  # the registered effects' (_BOUNDS at import)
+    lo = np.array([bounds.get(p, (-np.inf, np.inf))[0] for p in model.free])
+    hi = np.array([bounds.get(p, (-np.inf, np.inf))[1] for p in model.free])
     best = None
     starts = [start] if start is not None else []
     starts += _starts(model, x, y)
@@ -134,8 +146,9 @@ def _solve(model: StaticModel, x: np.ndarray, y: np.ndarray, start: np.ndarray |
 
 def _starts(model: StaticModel, x: np.ndarray, y: np.ndarray) -> list[np.ndarray]:
     """A few start points: linear part from least squares, nonlinear part on a small grid."""
-    lin = [p for p in model.free if p not in _NONLINEAR]
-    nl = [p for p in model.free if p in _NONLINEAR]
+    nonlinear = _nonlinear()
+    lin = [p for p in model.free if p not in nonlinear]
+    nl = [p for p in model.free if p in nonlinear]
     xmax = float(np.max(np.abs(x))) or 1.0
     grids = effects.static_grids(xmax)  # each effect's own (effects/<name>.py)
     out = []

@@ -13,15 +13,15 @@ thrust law) are applied to the whole command array before the loop, vectorised.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from scipy.optimize import least_squares
-from scipy.signal import lfilter, savgol_filter
+from scipy.signal import savgol_filter
 
 from seafmu.identification import effects
-from seafmu.identification.catalogue import CATALOGUE
 from seafmu.identification.fitting import (
     FitResult,
     aic_bic,
@@ -35,15 +35,25 @@ from seafmu.identification.fitting import (
 )
 from seafmu.identification.trial import Run, Trial, TrialError
 
-DEFAULTS: dict[str, dict[str, float]] = {
-    "first": {"M": 1.0, "m_a": 0.0, "d_L": 0.0, "d_Q": 0.0, "f_c": 0.0, "F_0": 0.0, "v_c": 0.0, "k": 1.0,
-              "k_q": 0.0, "eta_rev": 0.0, "n_0": 0.0, "u_sat": math.inf, "T_lag": 0.0, "t_d": 0.0,
-              "eps": 0.0},
-    "second": {"M": 1.0, "m_a": 0.0, "c": 0.0, "c3": 0.0, "d_L": 0.0, "d_Q": 0.0, "f_c": 0.0, "F_0": 0.0,
-               "eps": 0.0},
-    "pendulum": {"alpha": 0.0, "beta": 0.0, "gamma": 0.0, "f_c": 0.0, "F_0": 0.0, "eps": 0.0},
-    "sway_yaw": {"m22": 1.0, "m26": 0.0, "m66": 1.0, "Y_v": 0.0, "Y_r": 0.0, "N_v": 0.0, "N_r": 0.0},
+# The baseline models' own parameters; each effect adds its parameters at their neutral values
+# to the families whose simulator has them (``effects/<name>.py``: ``families``, ``neutral``).
+_BASE_DEFAULTS: dict[str, dict[str, float]] = {
+    "first": {"M": 1.0, "k": 1.0, "eps": 0.0},
+    "second": {"M": 1.0, "c": 0.0, "eps": 0.0},
+    "pendulum": {"alpha": 0.0, "beta": 0.0, "gamma": 0.0, "eps": 0.0},
+    "sway_yaw": {"m22": 1.0, "m26": 0.0, "m66": 1.0, "Y_v": 0.0, "N_r": 0.0},
 }
+
+
+def _defaults() -> dict[str, dict[str, float]]:
+    out = {fam: dict(vals) for fam, vals in _BASE_DEFAULTS.items()}
+    for obj in effects.all_effects():
+        for fam in obj.families:
+            out[fam].update(obj.neutral_values())
+    return out
+
+
+DEFAULTS = _defaults()
 BOUNDS = effects.bounds("timeseries")  # each effect's own (effects/<name>.py)
 IC_NAMES = {"first": ("x0",), "second": ("x0", "xd0"), "pendulum": ("x0", "xd0"), "sway_yaw": ("v0", "r0")}
 
@@ -93,25 +103,39 @@ class _Prep:
         self.uniform = bool(d.size and np.allclose(d, self.h, rtol=1e-6, atol=1e-12))
 
 
-def _lag(t: np.ndarray, x: np.ndarray, T: float, uniform: bool) -> np.ndarray:
-    """First-order lag, exact for a command held constant between samples; starts in steady state."""
-    if T <= 0:
-        return x
-    if uniform:
-        a = math.exp(-(t[1] - t[0]) / T)
-        y, _ = lfilter([0.0, 1.0 - a], [1.0, -a], x, zi=[x[0]])
-        return y
-    y = np.empty_like(x)
-    y[0] = x[0]
-    for i in range(len(x) - 1):
-        a = math.exp(-(t[i + 1] - t[i]) / T)
-        y[i + 1] = a * y[i] + (1 - a) * x[i]
-    return y
+def _stages() -> list[effects.CatalogueEffect]:
+    """The effects acting on the input chain, in the order they act."""
+    return sorted((o for o in effects.all_effects() if o.input_stage is not None),
+                  key=lambda o: (o.input_stage, o.name))
+
+
+def thrust(v: dict[str, float], law: str, n: np.ndarray, extra_terms: bool = True) -> np.ndarray:
+    """Thrust k g(n) of a shaft speed n: the baseline law g (n or n|n|) unless an effect reshapes
+    it, every effect's gain on it, then (``extra_terms``) every effect's added thrust."""
+    g = None
+    for obj in effects.all_effects():
+        g = obj.thrust_law(n, v)
+        if g is not None:
+            break
+    if g is None:
+        g = n if law == "linear" else n * np.abs(n)
+    tau = v.get("k", 0.0) * g
+    for obj in effects.all_effects():
+        gain = obj.thrust_gain(n, v)
+        if gain is not None:
+            tau = tau * gain
+    if extra_terms:
+        for obj in effects.all_effects():
+            term = obj.thrust_term(n, v)
+            if term is not None:
+                tau = tau + term
+    return tau
 
 
 def generalised_force(v: dict[str, float], model: TSModel, t: np.ndarray, u: np.ndarray | None,
                       uniform: bool = True) -> tuple[np.ndarray, bool]:
-    """Force from the command through delay, deadband, saturation, lag and thrust law.
+    """Force from the command through the effects' input chain (delay, deadband, saturation, lag)
+    and the thrust law.
 
     Returns the force at the samples and whether it varies continuously between them (after a lag),
     in which case the integrator interpolates instead of holding it.
@@ -119,26 +143,13 @@ def generalised_force(v: dict[str, float], model: TSModel, t: np.ndarray, u: np.
     if u is None or model.input_kind is None:
         return np.zeros(len(t)), False
     x = np.asarray(u, dtype=float)
-    td = v.get("t_d", 0.0)
-    if td > 0:
-        x = np.interp(t - td, t, x)
-    n0 = v.get("n_0", 0.0)
-    if n0 > 0:
-        x = np.sign(x) * np.maximum(np.abs(x) - n0, 0.0)
-    us = v.get("u_sat", math.inf)
-    if math.isfinite(us):
-        x = np.clip(x, -us, us)
-    lag = v.get("T_lag", 0.0)
-    x = _lag(t, x, lag, uniform)
+    continuous = False
+    for obj in _stages():
+        x, cont = obj.command(t, x, v, uniform)
+        continuous = continuous or cont
     if model.input_kind == "force":
-        return x, lag > 0
-    g = x if model.thrust_law == "linear" else x * np.abs(x)
-    eta = v.get("eta_rev", 0.0)
-    tau = v["k"] * g * (np.where(x < 0, 1.0 + eta, 1.0) if eta else 1.0)
-    kq = v.get("k_q", 0.0)
-    if kq:
-        tau = tau + kq * x * np.abs(x)
-    return tau, lag > 0
+        return x, continuous
+    return thrust(v, model.thrust_law, x), continuous
 
 
 def _forcing(t: np.ndarray, tau: np.ndarray, interp: bool, scale: float, offset: float) -> tuple[
@@ -161,6 +172,9 @@ def _sim_first(t: np.ndarray, tau: np.ndarray, interp: bool, v: dict[str, float]
     a, b = float(v["d_L"]) * iM, float(v["d_Q"]) * iM
     fm, vc = float(v["f_c"]) * iM, float(v["v_c"])
     hs, C1, C2, C4 = _forcing(t, tau, interp, iM, float(v["F_0"]) * iM)
+    extra = _state_force(v, "first")
+    if extra is not None:
+        return _sim_first_general(hs, C1, C2, C4, (a, b, fm, vc, iM, float(v.get("eps", 0.0))), extra, x0)
     out = [0.0] * (len(hs) + 1)
     x = float(x0)
     out[0] = x
@@ -226,6 +240,56 @@ def _sim_first(t: np.ndarray, tau: np.ndarray, interp: bool, v: dict[str, float]
     return out
 
 
+StateForce = Callable[[float, float], float]
+
+
+def _state_force(v: dict[str, float], family: str) -> StateForce | None:
+    """The sum of the effects' extra state forces f(x, w) in this family (None: there are none)."""
+    fs = [f for obj in effects.all_effects() if family in obj.families
+          if (f := obj.state_force(v)) is not None]
+    if not fs:
+        return None
+    if len(fs) == 1:
+        return fs[0]
+    return lambda x, w: sum(f(x, w) for f in fs)
+
+
+def _sim_first_general(hs: list[float], C1: list[float], C2: list[float], C4: list[float],
+                       coef: tuple[float, ...], extra: StateForce, x0: float) -> list[float]:
+    """The 1st-order loop with an effect's extra state force f(0, w) (e.g. a power-law drag):
+    the same RK4 and friction laws as ``_sim_first``, with a call per stage (slower)."""
+    a, b, fm, vc, iM, eps = coef
+    exact = fm > 0.0 and eps <= 0.0
+    ie = 1.0 / max(eps, 0.5 * fm * max(hs)) if fm > 0.0 and not exact else 0.0
+    th = math.tanh
+
+    def acc(c: float, s: float) -> float:
+        w = s - vc
+        fr = (fm if s > 0 else (-fm if s < 0 else 0.0)) if exact else (fm * th(s * ie) if fm else 0.0)
+        return c - w * (a + b * abs(w)) - fr - iM * extra(0.0, w)
+
+    out = [0.0] * (len(hs) + 1)
+    x = float(x0)
+    out[0] = x
+    i = 0
+    try:
+        for h, c1, c2, c4 in zip(hs, C1, C2, C4, strict=True):
+            k1 = acc(c1, x)
+            k2 = acc(c2, x + 0.5 * h * k1)
+            k3 = acc(c2, x + 0.5 * h * k2)
+            k4 = acc(c4, x + h * k3)
+            xn = x + h * (k1 + 2.0 * (k2 + k3) + k4) / 6.0
+            if exact and (x == 0.0 or x * xn <= 0.0 or x * (x + h * k1) <= 0.0) and abs(
+                    c4 - (-vc) * (a + b * abs(vc)) - iM * extra(0.0, -vc)) <= fm:
+                xn = 0.0  # stuck: the other forces at rest are below the friction force
+            x = xn
+            i += 1
+            out[i] = x
+    except (ValueError, OverflowError, ZeroDivisionError):  # diverged
+        return out[: i + 1] + [math.nan] * (len(out) - i - 1)
+    return out
+
+
 def _sim_second(t: np.ndarray, tau: np.ndarray, interp: bool, v: dict[str, float], restoring: str,
                 x0: float, xd0: float) -> list[float]:
     """M x_dd = tau + F_0 - c r(x) - c3 x^3 - d_L x_d - d_Q x_d|x_d| - f_c sign(x_d), r = x or sin x."""
@@ -253,6 +317,12 @@ def _sim_second(t: np.ndarray, tau: np.ndarray, interp: bool, v: dict[str, float
 
     if fm == 0.0:
         fric = _zero
+    extra = _state_force(v, "second")
+    if extra is not None:  # an effect's state force (a call per stage: slower)
+        def fric_extra(pos: float, w: float) -> float:
+            return fric(w) + iM * extra(pos, w)
+
+        return _sim_second_general(hs, E1, E2, E4, (c, c3, a, b, fm), sl, smooth, fric_extra, x0, xd0)
     try:
         for h, e1, e2, e4 in zip(hs, E1, E2, E4, strict=True):
             r = sin(x) if sl else x
@@ -276,6 +346,45 @@ def _sim_second(t: np.ndarray, tau: np.ndarray, interp: bool, v: dict[str, float
             i += 1
             out[i] = x
     except (ValueError, OverflowError):  # diverged: sin(inf), or a cube out of range
+        return out[: i + 1] + [math.nan] * (n - i - 1)
+    return out
+
+
+def _sim_second_general(hs: list[float], E1: list[float], E2: list[float], E4: list[float],
+                        coef: tuple[float, ...], sl: bool, smooth: bool, force: StateForce, x0: float,
+                        xd0: float) -> list[float]:
+    """``_sim_second``'s loop with friction and the effects' state forces as one call force(x, x_d)."""
+    c, c3, a, b, fm = coef
+    sin = math.sin
+
+    def acc(e: float, p: float, w: float) -> float:
+        r = sin(p) if sl else p
+        return e - c * r - c3 * p * p * p - w * (a + b * abs(w)) - force(p, w)
+
+    n = len(hs) + 1
+    out = [0.0] * n
+    x, xd = float(x0), float(xd0)
+    out[0] = x
+    i = 0
+    try:
+        for h, e1, e2, e4 in zip(hs, E1, E2, E4, strict=True):
+            a1 = acc(e1, x, xd)
+            x2, v2 = x + 0.5 * h * xd, xd + 0.5 * h * a1
+            a2 = acc(e2, x2, v2)
+            x3, v3 = x + 0.5 * h * v2, xd + 0.5 * h * a2
+            a3 = acc(e2, x3, v3)
+            x4, v4 = x + h * v3, xd + h * a3
+            a4 = acc(e4, x4, v4)
+            xn = x + h * (xd + 2.0 * (v2 + v3) + v4) / 6.0
+            vn = xd + h * (a1 + 2.0 * (a2 + a3) + a4) / 6.0
+            if fm > 0.0 and not smooth and (xd == 0.0 or xd * vn <= 0.0 or xd * (xd + h * a1) <= 0.0):
+                r = sin(xn) if sl else xn
+                if abs(e4 - c * r - c3 * xn * xn * xn) <= fm:
+                    vn = 0.0  # stuck: friction exceeds the restoring force at rest
+            x, xd = xn, vn
+            i += 1
+            out[i] = x
+    except (ValueError, OverflowError, ZeroDivisionError):  # diverged
         return out[: i + 1] + [math.nan] * (n - i - 1)
     return out
 
@@ -416,9 +525,15 @@ def baseline_model(trial: Trial) -> TSModel:
     return TSModel("sway_yaw", vals, ["Y_v", "N_r"], "force" if trial.kind == "step" else None)
 
 
-def extend(model: TSModel, effect: str) -> TSModel:
-    params = [p for p in CATALOGUE[effect].params if p not in model.free]
-    return model.copy(free=[*model.free, *params], effect=effect)
+def extend(model: TSModel, effect: str, trial: Trial | None = None) -> TSModel:
+    """The model with the effect's parameters free (and the values it fixes, for this trial)."""
+    obj = effects.get(effect)
+    assert obj is not None, effect
+    params = [p for p in obj.params if p not in model.free]
+    values = {**obj.neutral_values(), **model.values}
+    if trial is not None:
+        values.update(obj.fixed_values(trial))
+    return model.copy(free=[*model.free, *params], effect=effect, values=values)
 
 
 # -- data splitting ---------------------------------------------------------------------------------
@@ -499,19 +614,17 @@ def equation_error(model: TSModel, preps: list[_Prep]) -> dict[str, float]:
         est = {"Y_v": coef[0, 0], "Y_r": coef[1, 0], "N_v": coef[0, 1], "N_r": coef[1, 1]}
         return {k: float(est[k]) for k in model.free if k in est}
 
-    lin_free = [q for q in model.free if q in ("d_L", "d_Q", "k", "f_c", "F_0", "k_q", "m_a", "c", "c3",
-                                                "alpha", "beta", "gamma")]
     Ys, Phis = [], []
+    lin_free: list[str] = []
     for p in preps:
         if model.family == "first":
             x, xd = _smooth_derivs(p, 1)
             M = vals["M"] + vals["m_a"]
             probe = dict(vals)
-            probe.update({"k": 1.0, "k_q": 0.0})
+            probe.update({"k": 1.0, **_thrust_term_neutrals()})
             g, _ = generalised_force(probe, model, p.t, p.u, p.uniform)
             fixed, _ = generalised_force(vals, model, p.t, p.u, p.uniform)
-            cols = {"d_L": -x, "d_Q": -x * np.abs(x), "k": g, "f_c": -np.sign(x), "F_0": np.ones_like(x),
-                    "k_q": (p.u * np.abs(p.u)) if p.u is not None else np.zeros_like(x), "m_a": -xd}
+            cols = {"k": g, **_effect_columns("first", None, x, xd, p.u)}
             known = M * xd - (fixed if "k" not in model.free else 0.0)
             known = known + vals["d_L"] * x * ("d_L" not in model.free) + vals["d_Q"] * x * np.abs(x) * (
                 "d_Q" not in model.free)
@@ -520,15 +633,16 @@ def equation_error(model: TSModel, preps: list[_Prep]) -> dict[str, float]:
             if p.rate is not None and p.accel is not None:  # measured rates: a better start
                 x, xd, xdd = p.y, p.rate, p.accel
             if model.family == "pendulum":
-                cols = {"alpha": np.sin(x), "beta": -xd, "gamma": -xd * np.abs(xd), "f_c": -np.sign(xd),
-                        "F_0": np.ones_like(x)}
+                cols = {"alpha": np.sin(x), "beta": -xd, "gamma": -xd * np.abs(xd),
+                        **_effect_columns("pendulum", x, xd, xdd, None)}
                 known = xdd
             else:
                 M = vals["M"] + vals["m_a"]
                 r = np.sin(x) if model.restoring == "sin" else x
-                cols = {"c": -r, "c3": -x**3, "d_L": -xd, "d_Q": -xd * np.abs(xd), "f_c": -np.sign(xd),
-                        "F_0": np.ones_like(x), "m_a": -xdd}
+                cols = {"c": -r, **_effect_columns("second", x, xd, xdd, None)}
                 known = M * xdd + vals["c"] * r * ("c" not in model.free)
+        # the parameters the equation is linear in: the baseline's and the effects' regressors
+        lin_free = [q for q in model.free if q in cols]
         Phis.append(np.column_stack([cols[q] for q in lin_free]) if lin_free else np.zeros((len(x), 0)))
         Ys.append(known)
     est: dict[str, float] = {}
@@ -546,6 +660,24 @@ def equation_error(model: TSModel, preps: list[_Prep]) -> dict[str, float]:
     if "k" in est and est["k"] <= 0:
         est["k"] = abs(est["k"]) or 1.0
     return est
+
+
+def _effect_columns(family: str, pos: np.ndarray | None, speed: np.ndarray, acc: np.ndarray,
+                    u: np.ndarray | None) -> dict[str, np.ndarray]:
+    """Equation-error columns of every effect parameter that enters the equation linearly."""
+    cols: dict[str, np.ndarray] = {}
+    for obj in effects.all_effects():
+        cols.update(obj.regressors(family, pos, speed, acc, u))
+    return cols
+
+
+def _thrust_term_neutrals() -> dict[str, float]:
+    """Neutral values of the parameters of added thrust terms (the probe of k's column has none)."""
+    out: dict[str, float] = {}
+    for obj in effects.all_effects():
+        if type(obj).thrust_term is not effects.CatalogueEffect.thrust_term:
+            out.update(obj.neutral_values())
+    return out
 
 
 def _scales(model: TSModel, vals: dict[str, float], preps: list[_Prep]) -> dict[str, float]:
@@ -618,8 +750,9 @@ def fit_timeseries(trial: Trial, model: TSModel, start: dict[str, float] | None 
     ics = start_ics or [initial_state(model, p) for p in sp.fit]
     theta0 = [vals0[q] for q in model.free] + [x for ic in ics for x in ic]
     names = list(model.free) + [f"{n}[{i}]" for i in range(len(sp.fit)) for n in IC_NAMES[model.family]]
-    lo = np.array([BOUNDS.get(q, (-np.inf, np.inf))[0] for q in model.free] + [-np.inf] * (nic * len(sp.fit)))
-    hi = np.array([BOUNDS.get(q, (-np.inf, np.inf))[1] for q in model.free] + [np.inf] * (nic * len(sp.fit)))
+    bounds = effects.bounds("timeseries")  # the registered effects' (BOUNDS at import)
+    lo = np.array([bounds.get(q, (-np.inf, np.inf))[0] for q in model.free] + [-np.inf] * (nic * len(sp.fit)))
+    hi = np.array([bounds.get(q, (-np.inf, np.inf))[1] for q in model.free] + [np.inf] * (nic * len(sp.fit)))
     x0 = np.clip(np.array(theta0, dtype=float), lo, hi)
     # Start strictly inside the bounds (trf needs it); a parameter at its bound gets a small nudge.
     x0 = np.where(x0 <= lo, lo + np.maximum(1e-6, 1e-3 * np.abs(x0)), x0)
@@ -808,7 +941,7 @@ def sanity(model: TSModel, v: dict[str, float], trial: Trial, sp: Split | None =
 def fit_effect(trial: Trial, base: FitResult, effect: str, sp: Split | None = None) -> FitResult:
     """Refit the baseline extended by one catalogue effect, from the baseline's parameters."""
     bmodel: TSModel = base.extras["model"]
-    model = extend(bmodel, effect)
+    model = extend(bmodel, effect, trial)
     sp = sp or base.extras["split"]
     vals = dict(base.extras["values"])
     ics = base.extras["initial_states"]
@@ -836,13 +969,14 @@ def fit_effect(trial: Trial, base: FitResult, effect: str, sp: Split | None = No
         again = fit_timeseries(trial, model, start={**vals, **null}, start_ics=list(ics), sp=sp)
         if again.extras["rss"] < fit.extras["rss"]:
             fit = again
-    if effect == "coulomb_friction" and fit.ci95["f_c"][0] > 0:
-        fit = _sharpen_friction(trial, fit, sp)
+    if obj.regularised is not None and fit.ci95[obj.regularised[0]][0] > 0:
+        fit = _sharpen(trial, fit, sp, obj.regularised[1])
     return fit
 
 
-def _sharpen_friction(trial: Trial, fit: FitResult, sp: Split) -> FitResult:
-    """Continuation towards true stiction: refit with the friction law 3 and 10 times sharper.
+def _sharpen(trial: Trial, fit: FitResult, sp: Split, width: str) -> FitResult:
+    """Continuation towards the sharp law of a regularised effect (Coulomb friction's
+    f_c tanh(v/eps)): refit with the width 3 and 10 times smaller.
 
     The smooth law lets a body creep where a real one sticks, and the fit pays for the creep with
     a larger f_c and a distorted damping split; starting each sharper fit from the previous one
@@ -850,7 +984,7 @@ def _sharpen_friction(trial: Trial, fit: FitResult, sp: Split) -> FitResult:
     """
     for k in (3.0, 10.0):
         m = fit.extras["model"]
-        sharper = m.copy(values={**m.values, "eps": m.values["eps"] / k})
+        sharper = m.copy(values={**m.values, width: m.values[width] / k})
         nxt = fit_timeseries(trial, sharper, start=fit.extras["values"],
                              start_ics=fit.extras["initial_states"], sp=sp)
         if not nxt.extras["rss"] <= fit.extras["rss"]:

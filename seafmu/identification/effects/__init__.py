@@ -2,29 +2,26 @@
 
 Each module of this package defines one subclass of ``base.CatalogueEffect`` decorated with
 ``@register``; the package imports every module on first use, so an effect's behaviour is its
-file (plus its tests) and its name one line in ``catalogue.CATALOGUE``, the ordered list of names
-that reports and JSON use.
-
-Owned by the objects so far: for every effect, when it applies to a 1-2-DOF trial
-(``applies``), the finding in words (``evidence``), the "absent" values, the parameters' bounds
-and start grids; for the **maneuver** model family (multi-DOF output error,
-``seafmu.identification.maneuver``), the parameter names per DOF, scales, simulator term and
-sentence. Still name switches elsewhere: the parameters' units, the force/thrust terms of the
-``static`` and ``timeseries`` models, and the hiding in ``synthetic``/``plant_trials``;
-docs/architecture.md, "Identification: where changes go", has the plan.
+file (plus its tests). The object owns its catalogue entry (``catalogue.CATALOGUE`` is built
+from the registry in ``position`` order), units, "absent" values, bounds, start grids, when it
+applies and its finding in words, its terms in the static, time-series and maneuver models
+(the fitters sum them), and how synthetic and plant-made trials hide it. docs/architecture.md,
+"Identification: where changes go", has the table of hooks and a worked example.
 """
 
 from __future__ import annotations
 
 import importlib
 import pkgutil
+from typing import Any
 
 from seafmu.identification.effects.base import REGISTRY, CatalogueEffect, register
 
-__all__ = ["REGISTRY", "CatalogueEffect", "bounds", "get", "maneuver_effects", "owner", "register",
-           "static_grids"]
+__all__ = ["REGISTRY", "CatalogueEffect", "all_effects", "bounds", "get", "maneuver_effects", "owner",
+           "register", "static_grids"]
 
 _loaded = False
+_ordered: list[Any] = [None, []]
 
 
 def _load() -> None:
@@ -50,13 +47,22 @@ def maneuver_effects(order: tuple[str, ...]) -> tuple[str, ...]:
     return tuple(n for n in order if n in REGISTRY and REGISTRY[n].maneuver)
 
 
-def owner(param: str) -> CatalogueEffect | None:
-    """The effect whose parameter ``param`` is (catalogue names, or a maneuver fit's per-DOF names)."""
-    from seafmu.identification.catalogue import CATALOGUE, effect_params
-
+def all_effects() -> list[CatalogueEffect]:
+    """Every registered effect object, in catalogue order (``position``, then name)."""
     _load()
-    for name, obj in REGISTRY.items():
-        if name in CATALOGUE and effect_params(name, [param]):
+    key = tuple(REGISTRY)  # the sorted list is reused until an effect is (un)registered
+    if _ordered[0] != key:
+        _ordered[0] = key
+        _ordered[1] = sorted(REGISTRY.values(), key=lambda o: (o.position, o.name))
+    return _ordered[1]
+
+
+def owner(param: str) -> CatalogueEffect | None:
+    """The effect whose parameter ``param`` is (its own names, or a maneuver fit's per-DOF names
+    F_0[X], v_c_north, ...)."""
+    _load()
+    for obj in REGISTRY.values():
+        if any(param == q or param.startswith((f"{q}[", f"{q}_")) for q in obj.params):
             return obj
     return None
 

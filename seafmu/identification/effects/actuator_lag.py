@@ -5,16 +5,44 @@ from __future__ import annotations
 import math
 from typing import TYPE_CHECKING, Any, ClassVar
 
-from seafmu.identification.effects.base import CatalogueEffect, fmt, register
+import numpy as np
+from scipy.signal import lfilter
+
+from seafmu.identification.effects.base import CatalogueEffect, Hiding, fmt, register, with_thrusters
 
 if TYPE_CHECKING:
     from seafmu.identification.trial import Trial
 
 
+def first_order_lag(t: np.ndarray, x: np.ndarray, T: float, uniform: bool) -> np.ndarray:
+    """First-order lag, exact for a command held constant between samples; starts in steady state."""
+    if T <= 0:
+        return x
+    if uniform:
+        a = math.exp(-(t[1] - t[0]) / T)
+        y, _ = lfilter([0.0, 1.0 - a], [1.0, -a], x, zi=[x[0]])
+        return y
+    y = np.empty_like(x)
+    y[0] = x[0]
+    for i in range(len(x) - 1):
+        a = math.exp(-(t[i + 1] - t[i]) / T)
+        y[i + 1] = a * y[i] + (1 - a) * x[i]
+    return y
+
+
 @register
 class ActuatorLag(CatalogueEffect):
     name = "actuator_lag"
+    meaning = "first-order lag between command and thrust"
+    params = ("T_lag",)
+    observable_in = "step"
+    position = 10
+    units: ClassVar[dict[str, tuple[str, bool]]] = {"T_lag": ("time", False)}
     timeseries_bounds: ClassVar[dict[str, tuple[float, float]]] = {"T_lag": (0.0, math.inf)}
+    families = ("first",)
+    input_stage = 40  # last: the shaft lags whatever the command became
+    demo_kinds = ("step",)
+    plant = ("surge_step", "the shipped AMV shaft lag, time_constant 0.25 s")
 
     def timeseries_start_grid(self, s: dict[str, float], vals: dict[str, float], model: Any,
                               preps: list[Any]) -> list[dict[str, float]]:
@@ -27,3 +55,14 @@ class ActuatorLag(CatalogueEffect):
     def evidence(self, params: dict[str, float], trial: Trial) -> str:
         return (f"thrust builds up with a first-order lag of {fmt(params.get('T_lag', 0))} s after the "
                 f"command (shaft/actuator dynamics)")
+
+    def command(self, t: np.ndarray, x: np.ndarray, v: dict[str, float], uniform: bool) -> tuple[
+            np.ndarray, bool]:
+        lag = v.get("T_lag", 0.0)
+        return first_order_lag(t, x, lag, uniform), lag > 0
+
+    def hide(self, kind: str, amplitude: float) -> Hiding:
+        return Hiding(truth={"T_lag": 0.8})
+
+    def hide_in_plant(self, kind: str, amplitude: float) -> Hiding:
+        return Hiding(vessel=lambda spec: with_thrusters(spec, time_constant=0.25))

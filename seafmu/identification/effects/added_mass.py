@@ -2,17 +2,32 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+import dataclasses
+from typing import TYPE_CHECKING, Any, ClassVar
 
-from seafmu.identification.effects.base import CatalogueEffect, fmt, register, unit
+import numpy as np
+
+from seafmu.identification.effects.base import CatalogueEffect, Hiding, fmt, register, replace_matrix, unit
 
 if TYPE_CHECKING:
     from seafmu.identification.trial import Trial
+
+# The AMV OSF file's surge numbers the plant-made trial states (M_RB[0][0], M_A[0][0], k per screw).
+_AMV_MASS, _AMV_ADDED, _AMV_K = 40.0, 10.0, 12.63
 
 
 @register
 class AddedMass(CatalogueEffect):
     name = "added_mass"
+    meaning = "inertia differs from the rigid-body value"
+    params = ("m_a",)
+    observable_in = ("step with known force (force input or known thrust coefficient) and known mass; "
+                     "2nd-order decay with known stiffness and mass")
+    position = 6
+    units: ClassVar[dict[str, tuple[str, bool]]] = {"m_a": ("inertia", True)}
+    families = ("first", "second")
+    demo_kinds = ("step", "decay2")
+    plant = ("surge_step", "vessel M_A[0][0] = 22 kg; the trial states 40 kg + 10 kg (file) and k")
 
     def timeseries_start_grid(self, s: dict[str, float], vals: dict[str, float], model: Any,
                               preps: list[Any]) -> list[dict[str, float]]:
@@ -32,3 +47,22 @@ class AddedMass(CatalogueEffect):
     def evidence(self, params: dict[str, float], trial: Trial) -> str:
         return (f"the inertia is not the rigid-body value: an added mass of {fmt(params.get('m_a', 0))} "
                 f"{unit('m_a', trial)} is missing")
+
+    def regressors(self, family: str, pos: np.ndarray | None, speed: np.ndarray, acc: np.ndarray,
+                   u: np.ndarray | None) -> dict[str, np.ndarray]:
+        return {"m_a": -acc}
+
+    def hide(self, kind: str, amplitude: float) -> Hiding:
+        if kind == "decay2":  # known stiffness separates inertia from restoring
+            return Hiding(truth={"m_a": 1.5}, constants={"stiffness": 20.0})
+        # a step commanded by force (known) on a body of stated rigid-body mass
+        return Hiding(truth={"M": 40.0, "m_a": 12.0}, constants={"mass": 40.0}, input_kind="force",
+                      levels=((20.0, 40.0, 10.0, -20.0, -40.0, 0.0), (30.0, 15.0, -30.0, 45.0, 5.0, -10.0)))
+
+    def hide_in_plant(self, kind: str, amplitude: float) -> Hiding:
+        return Hiding(vessel=_surge_added_22, constants={"mass": _AMV_MASS, "added_mass": _AMV_ADDED,
+                                                         "thrust_coefficient": 2 * _AMV_K})
+
+
+def _surge_added_22(spec: Any) -> Any:
+    return dataclasses.replace(spec, M_A=replace_matrix(spec.M_A, {(0, 0): 22.0}))

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import dataclasses
 from abc import ABC, abstractmethod
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
@@ -25,13 +28,53 @@ class EffectNotSupported(TypeError):
     """A capability this effect does not have (e.g. a maneuver-level term of a static-only effect)."""
 
 
+@dataclass(frozen=True)
+class Hiding:
+    """What hiding an effect changes in a synthetic trial (None/empty: the clean trial's own).
+
+    ``synthetic.demo_trial`` uses ``truth`` (the simulated model's values), ``restoring``,
+    ``thrust_law`` and ``input_kind`` (of the simulated model); ``plant_trials.plant_trial`` uses
+    ``vessel`` (the vessel file carrying the effect) and ``plant`` (the plant's parameters). Both
+    use ``baseline`` (the trial's stated baseline: a damping term left out of it is the effect),
+    ``constants`` (merged into the trial's), ``starts`` (initial speeds/angles, times the amplitude)
+    and ``levels`` (the command staircases of a step trial, times the amplitude).
+    """
+
+    truth: dict[str, float] = field(default_factory=dict)
+    baseline: str | None = None
+    constants: dict[str, float] = field(default_factory=dict)
+    starts: tuple[float, ...] | None = None
+    levels: tuple[tuple[float, ...], ...] | None = None
+    restoring: str | None = None
+    thrust_law: str | None = None
+    input_kind: str | None = None
+    trial_restoring: str | None = None
+    vessel: Callable[[Any], Any] | None = None
+    plant: dict[str, float] = field(default_factory=dict)
+
+
 class CatalogueEffect(ABC):
     """One catalogue effect. A model family the effect extends is a group of methods below.
 
-    Every effect (1-2-DOF trials): ``absent_values(trial)``, ``static_bounds`` and
-    ``timeseries_bounds`` (its parameters), ``applies(trial)`` — None where the effect can be observed,
-    else the reason it cannot (maneuver and sway_yaw trials are decided by ``catalogue``) — and
-    ``evidence(params, trial)``, the finding in a naval architect's words.
+    Every effect: its catalogue entry (``name``, ``meaning``, ``params``, ``observable_in`` and
+    ``position``, its place in the catalogue's order), ``absent_values(trial)``, ``static_bounds``
+    and ``timeseries_bounds`` (its parameters), ``units`` (each parameter's quantity; ``unit``),
+    ``applies(trial)`` — None where the effect can be observed, else the reason it cannot
+    (maneuver and sway_yaw trials are decided by ``catalogue``) — and ``evidence(params, trial)``,
+    the finding in a naval architect's words.
+
+    Static tables (``static.StaticModel.predict``): the input passes every effect's
+    ``static_input`` (in ``input_stage`` order), the thrust law is the baseline's unless an effect
+    gives ``thrust_law``, multiplied by every ``thrust_gain``, and every ``static_term`` is added.
+
+    Time series (``timeseries``): the command passes every effect's ``command`` (in
+    ``input_stage`` order), then the same thrust law, gains and ``thrust_term``; the state terms
+    of the RK4 loops read the effect's parameters by name (their neutral values ``neutral``, in
+    ``timeseries.DEFAULTS``); ``regressors`` give the equation-error start guess its columns.
+
+    Synthetic data: ``demo_kinds`` (the first is the default) and ``hide(kind, A)`` for
+    ``synthetic.demo_trial``; ``plant`` (kind, how the plant carries it) or ``plant_missing`` (why
+    the plant cannot) and ``hide_in_plant(kind, A)`` for ``plant_trials.plant_trial``.
 
     Maneuver model (``seafmu.identification.maneuver``, output error on the whole log): set
     ``maneuver = True`` and give
@@ -46,21 +89,49 @@ class CatalogueEffect(ABC):
     """
 
     name: ClassVar[str]
+    # The catalogue entry (catalogue.CATALOGUE is built from these, ordered by position).
+    meaning: ClassVar[str] = ""
+    params: ClassVar[tuple[str, ...]] = ()
+    observable_in: ClassVar[str] = ""
+    position: ClassVar[float] = 1000.0
     absent: ClassVar[float] = 0.0
     maneuver: ClassVar[bool] = False
+    # Each parameter's quantity (see ``quantity_unit``) and whether it is stated per unit inertia
+    # when the trial does not give the mass.
+    units: ClassVar[dict[str, tuple[str, bool]]] = {}
     # Bounds of the effect's parameters in the fits of the 1-2-DOF families (unbounded if absent).
     static_bounds: ClassVar[dict[str, tuple[float, float]]] = {}
     timeseries_bounds: ClassVar[dict[str, tuple[float, float]]] = {}
     # False when the fit must not start at the "absent" value (no gradient there: a cap that is
     # never reached); the extension then starts with the effect absent but from its start grid only.
     start_at_absent: ClassVar[bool] = True
+    # Time-series model families ("first", "second", "pendulum", "sway_yaw") whose simulator has
+    # the effect's parameters, and their values where the term vanishes (default: ``absent``).
+    families: ClassVar[tuple[str, ...]] = ()
+    neutral: ClassVar[dict[str, float]] = {}
+    # Where the effect acts on the input chain (None: not at all); lower acts first.
+    input_stage: ClassVar[float | None] = None
+    # (parameter, width) of a regularised law a time-series fit sharpens by continuation.
+    regularised: ClassVar[tuple[str, str] | None] = None
+    # Synthetic trials: the demo kinds it is hidden in (first: default), the plant trial kind and
+    # how the plant carries it, or why the plant cannot.
+    demo_kinds: ClassVar[tuple[str, ...]] = ()
+    plant: ClassVar[tuple[str, str] | None] = None
+    plant_missing: ClassVar[str | None] = None
 
     def absent_values(self, trial: Trial) -> dict[str, float]:
         """The parameter values at which the effect vanishes (its significance is tested against
         them; the extended fit may start there)."""
-        from seafmu.identification.catalogue import CATALOGUE  # the catalogue imports this package
+        return dict.fromkeys(self.params, self.absent)
 
-        return dict.fromkeys(CATALOGUE[self.name].params, self.absent)
+    def neutral_values(self) -> dict[str, float]:
+        """The parameters' values in a simulator where the effect is not part of the model."""
+        return {p: self.neutral.get(p, self.absent) for p in self.params}
+
+    def unit(self, param: str, trial: Trial) -> str:
+        """The unit of one of its parameters in this trial."""
+        q = self.units.get(param)
+        return quantity_unit(q[0], trial, q[1]) if q else ""
 
     def timeseries_start_grid(self, s: dict[str, float], vals: dict[str, float], model: Any,
                               preps: list[Any]) -> list[dict[str, float]]:
@@ -80,6 +151,63 @@ class CatalogueEffect(ABC):
     @abstractmethod
     def evidence(self, params: dict[str, float], trial: Trial) -> str:
         """The sentence that names the effect with its fitted parameters."""
+
+    # -- the model terms (each returns None or its input unchanged where the effect is absent) --
+
+    def static_input(self, x: np.ndarray, v: dict[str, float]) -> np.ndarray:
+        """A table's input (speed or shaft speed) as the model sees it."""
+        return x
+
+    def command(self, t: np.ndarray, x: np.ndarray, v: dict[str, float], uniform: bool) -> tuple[
+            np.ndarray, bool]:
+        """A time series' command as the thruster sees it, and whether it now varies continuously
+        between samples (after a lag)."""
+        return x, False
+
+    def thrust_law(self, n: np.ndarray, v: dict[str, float]) -> np.ndarray | None:
+        """The shape g(n) of thrust k g(n), replacing the baseline's n or n|n|."""
+        return None
+
+    def thrust_gain(self, n: np.ndarray, v: dict[str, float]) -> np.ndarray | None:
+        """A factor on the thrust k g(n)."""
+        return None
+
+    def thrust_term(self, n: np.ndarray, v: dict[str, float]) -> np.ndarray | None:
+        """A thrust added to k g(n) (tables and time series)."""
+        return None
+
+    def static_term(self, x: np.ndarray, w: np.ndarray, v: dict[str, float]) -> np.ndarray | float | None:
+        """A force added to a table's law (x the table's input, w after ``static_input``)."""
+        return None
+
+    def state_force(self, v: dict[str, float]) -> Callable[[float, float], float] | None:
+        """An extra force f(x, w) of the time-series state (x the position of a 2nd-order model,
+        0 in a 1st-order one; w the speed, through the water where there is a current), on the
+        side of the damping (it opposes the motion when positive for w > 0). None where absent.
+        The RK4 loops then take their general path (a Python call per stage)."""
+        return None
+
+    def fixed_values(self, trial: Trial) -> dict[str, float]:
+        """Values the extended model fixes (not fitted) when it adds this effect."""
+        return {}
+
+    def regressors(self, family: str, pos: np.ndarray | None, speed: np.ndarray, acc: np.ndarray,
+                   u: np.ndarray | None) -> dict[str, np.ndarray]:
+        """Equation-error columns of its parameters that enter the equation linearly (force per
+        unit parameter, on the side of M x_dd)."""
+        return {}
+
+    # -- synthetic data --
+
+    def hide(self, kind: str, amplitude: float) -> Hiding:
+        """How ``synthetic.demo_trial`` hides the effect in a trial of ``kind``."""
+        raise EffectNotSupported(f"effect '{self.name}' is not hidden in a '{kind}' demo trial")
+
+    def hide_in_plant(self, kind: str, amplitude: float) -> Hiding:
+        """How ``plant_trials.plant_trial`` hides the effect in a plant-made trial of ``kind``."""
+        raise EffectNotSupported(f"effect '{self.name}' is not hidden in a '{kind}' plant trial")
+
+    # -- maneuver model --
 
     def maneuver_params(self, d: int) -> list[str]:
         raise EffectNotSupported(f"effect '{self.name}' has no maneuver-level extension")
@@ -148,3 +276,60 @@ def unit(param: str, trial: Trial) -> str:
     from seafmu.identification.catalogue import param_unit  # the catalogue imports this package
 
     return param_unit(param, trial)
+
+
+def is_rpm(trial: Trial) -> bool:
+    """The trial's input is a shaft speed (a bollard-pull table or an rpm-commanded step)."""
+    return (trial.kind == "static" and trial.table == "thrust_rpm") or trial.input_kind == "rpm"
+
+
+def quantity_unit(quantity: str, trial: Trial, per_inertia: bool = False) -> str:
+    """The unit of a quantity in this trial: "force", "speed", "inertia", "damping_L" (force per
+    speed), "damping_Q", "stiffness", "stiffness3", "thrust_n" (N/rps), "thrust_n2" (N/rps²),
+    "command" (rev/s or a force), "time", "ratio".
+
+    ``per_inertia``: a time-series trial that does not state the mass fits force per unit inertia
+    (a shaft-speed command stays in rev/s). A pendulum's forces are angular accelerations; a
+    sway_yaw trial has units for its own coefficients only (``coupling``).
+    """
+    if trial.kind == "pendulum":
+        return "rad/s²" if quantity == "force" else ""
+    if trial.dof == "sway_yaw":
+        return ""
+    from seafmu.identification.trial import ROTATIONAL
+
+    rot = trial.dof in ROTATIONAL
+    F = "N·m" if rot else "N"
+    V = "rad/s" if rot else "m/s"
+    X = "rad" if rot else "m"
+    rpm = is_rpm(trial)
+    table = {"force": F, "speed": V, "inertia": "kg·m²" if rot else "kg", "damping_L": f"{F}/({V})",
+             "damping_Q": f"{F}/({V})²", "stiffness": f"{F}/{X}", "stiffness3": f"{F}/{X}³",
+             "thrust_n": "N/rps", "thrust_n2": "N/rps²", "command": "rev/s" if rpm else F,
+             "time": "s", "ratio": "1"}
+    if trial.kind == "static" and trial.table == "thrust_rpm" and quantity == "force":
+        table["force"] = "N"
+    text = table.get(quantity, "")
+    per_unit = trial.kind in ("decay", "step", "decay2") and "mass" not in trial.constants
+    if per_unit and per_inertia and not (quantity == "command" and rpm):
+        text = f"{text} per unit inertia"
+    return text
+
+
+# -- plant trials: vessel-file edits an effect's hiding uses ------------------------------------
+
+def replace_matrix(m: np.ndarray, entries: dict[tuple[int, int], float]) -> np.ndarray:
+    """A copy of a vessel matrix with some entries set."""
+    out = np.array(m, dtype=float)
+    for (i, j), v in entries.items():
+        out[i, j] = v
+    return out
+
+
+def with_thrusters(spec: Any, **changes: float | str) -> Any:
+    """The vessel spec with every thruster's field(s) set (numbers broadcast over the thrusters)."""
+    th = spec.thrusters
+    kw: dict[str, object] = {}
+    for name, value in changes.items():
+        kw[name] = value if isinstance(value, str) else np.full(th.count, float(value))
+    return dataclasses.replace(spec, thrusters=dataclasses.replace(th, **kw))

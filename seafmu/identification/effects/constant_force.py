@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+import dataclasses
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
-from seafmu.identification.effects.base import CatalogueEffect, fmt, register, unit, words
+from seafmu.identification.effects.base import CatalogueEffect, Hiding, fmt, register, unit, words
 
 if TYPE_CHECKING:
     from seafmu.identification.trial import Trial
@@ -15,7 +16,17 @@ if TYPE_CHECKING:
 @register
 class ConstantForce(CatalogueEffect):
     name = "constant_force"
+    meaning = "constant external force/moment or offset (wind, tether, trim)"
+    params = ("F_0",)
+    observable_in = "every kind except sway_yaw (maneuver: one per DOF, F_0[X] ...)"
+    position = 5
     maneuver = True
+    units: ClassVar[dict[str, tuple[str, bool]]] = {"F_0": ("force", True)}
+    families = ("first", "second", "pendulum")
+    demo_kinds = ("step", "thrust", "decay", "decay2", "pendulum")
+    plant = ("heave_decay", "the shipped Minerva 2: buoyancy exceeds weight by 30 N")
+    _demo: ClassVar[dict[str, float]] = {"thrust": 1.5, "decay": 1.0, "step": 1.5, "decay2": 0.8,
+                                         "pendulum": 0.15}
 
     def timeseries_start_grid(self, s: dict[str, float], vals: dict[str, float], model: Any,
                               preps: list[Any]) -> list[dict[str, float]]:
@@ -31,6 +42,20 @@ class ConstantForce(CatalogueEffect):
         _, force, _ = words(trial)
         return (f"a steady external {force} of {fmt(params.get('F_0', 0))} {unit('F_0', trial)} acts "
                 f"(wind, tether pull, trim or a sensor offset)")
+
+    def static_term(self, x: np.ndarray, w: np.ndarray, v: dict[str, float]) -> float | None:
+        return v["F_0"] if "F_0" in v else None
+
+    def regressors(self, family: str, pos: np.ndarray | None, speed: np.ndarray, acc: np.ndarray,
+                   u: np.ndarray | None) -> dict[str, np.ndarray]:
+        return {"F_0": np.ones_like(speed)}
+
+    def hide(self, kind: str, amplitude: float) -> Hiding:
+        # a decay needs motion both ways to tell the force from a current or friction
+        return Hiding(truth={"F_0": self._demo[kind]}, starts=(1.0, -1.0, 0.7) if kind == "decay" else None)
+
+    def hide_in_plant(self, kind: str, amplitude: float) -> Hiding:
+        return Hiding(vessel=_buoyant_30N)
 
     def maneuver_params(self, d: int) -> list[str]:
         """One force per DOF: F_0[X], F_0[Y], ... (N or N m)."""
@@ -50,3 +75,9 @@ class ConstantForce(CatalogueEffect):
                            for k, v in params.items() if k.startswith("F_0["))
         return (f"a steady external force acts on the hull ({forces}): wind, tether pull, trim or buoyancy "
                 "error")
+
+
+def _buoyant_30N(spec: Any) -> Any:
+    """The (neutrally trimmed) vessel with buoyancy 30 N above its weight, as Minerva 2 ships."""
+    restoring = dataclasses.replace(spec.restoring, buoyancy=spec.restoring.weight + 30.0)
+    return dataclasses.replace(spec, restoring=restoring)

@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
 from seafmu.identification.effects.base import (
     CatalogueEffect,
+    Hiding,
     fmt,
     moves_both_ways,
     register,
@@ -23,7 +24,17 @@ if TYPE_CHECKING:
 @register
 class Current(CatalogueEffect):
     name = "current"
+    meaning = "the water moves: damping acts on v - v_c"
+    params = ("v_c",)
+    observable_in = ("static force-speed, decay, step with quadratic damping and motion ahead and astern (to "
+                     "tell it from a constant force); maneuver (NED current v_c_north, v_c_east)")
+    position = 4
     maneuver = True
+    units: ClassVar[dict[str, tuple[str, bool]]] = {"v_c": ("speed", False)}
+    families = ("first",)  # a state term of the 1st-order loop: damping acts on v - v_c
+    input_stage = 15  # a table's speed through the water
+    demo_kinds = ("decay",)
+    plant = ("surge_decay", "plant current_speed 0.1 m/s towards north, heading north; runs ahead and astern")
 
     def timeseries_start_grid(self, s: dict[str, float], vals: dict[str, float], model: Any,
                               preps: list[Any]) -> list[dict[str, float]]:
@@ -48,6 +59,15 @@ class Current(CatalogueEffect):
     def evidence(self, params: dict[str, float], trial: Trial) -> str:
         return (f"the hull moves through a current of {fmt(params.get('v_c', 0))} {unit('v_c', trial)}: the "
                 f"damping acts on the speed through the water, not the measured speed")
+
+    def static_input(self, x: np.ndarray, v: dict[str, float]) -> np.ndarray:
+        return x - v["v_c"] if "v_c" in v else x
+
+    def hide(self, kind: str, amplitude: float) -> Hiding:
+        return Hiding(truth={"v_c": 0.1}, starts=(1.0, -1.0, 0.7))
+
+    def hide_in_plant(self, kind: str, amplitude: float) -> Hiding:
+        return Hiding(plant={"current_speed": 0.1, "current_direction": 0.0}, starts=(1.0, -1.0, 0.7))
 
     def maneuver_params(self, d: int) -> list[str]:
         """The NED current (north, east), m/s."""

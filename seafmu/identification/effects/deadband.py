@@ -5,7 +5,17 @@ from __future__ import annotations
 import math
 from typing import TYPE_CHECKING, Any, ClassVar
 
-from seafmu.identification.effects.base import CatalogueEffect, fmt, register, rpm_step, static_thrust, unit
+import numpy as np
+
+from seafmu.identification.effects.base import (
+    CatalogueEffect,
+    Hiding,
+    fmt,
+    register,
+    rpm_step,
+    static_thrust,
+    unit,
+)
 
 if TYPE_CHECKING:
     from seafmu.identification.trial import Trial
@@ -14,8 +24,17 @@ if TYPE_CHECKING:
 @register
 class Deadband(CatalogueEffect):
     name = "deadband"
+    meaning = "no thrust below a threshold speed"
+    params = ("n_0",)
+    observable_in = "thrust-rpm table, step with shaft-speed command"
+    position = 9
+    units: ClassVar[dict[str, tuple[str, bool]]] = {"n_0": ("command", True)}
     static_bounds: ClassVar[dict[str, tuple[float, float]]] = {"n_0": (0.0, math.inf)}
     timeseries_bounds: ClassVar[dict[str, tuple[float, float]]] = {"n_0": (0.0, math.inf)}
+    families = ("first",)
+    input_stage = 20
+    demo_kinds = ("step", "thrust")
+    plant_missing = "the thruster model maps every non-zero shaft speed to thrust (T = k n or k n|n|)"
 
     def timeseries_start_grid(self, s: dict[str, float], vals: dict[str, float], model: Any,
                               preps: list[Any]) -> list[dict[str, float]]:
@@ -31,3 +50,18 @@ class Deadband(CatalogueEffect):
     def evidence(self, params: dict[str, float], trial: Trial) -> str:
         return (f"the thruster gives no thrust below {fmt(params.get('n_0', 0))} {unit('n_0', trial)} "
                 "(deadband)")
+
+    def static_input(self, x: np.ndarray, v: dict[str, float]) -> np.ndarray:
+        n0 = v.get("n_0", 0.0)
+        return np.sign(x) * np.maximum(np.abs(x) - n0, 0.0) if n0 > 0 else x
+
+    def command(self, t: np.ndarray, x: np.ndarray, v: dict[str, float], uniform: bool) -> tuple[
+            np.ndarray, bool]:
+        return self.static_input(x, v), False
+
+    def hide(self, kind: str, amplitude: float) -> Hiding:
+        if kind == "thrust":
+            return Hiding(truth={"n_0": 0.25 * amplitude})
+        # commands inside the band (0.4 > 0.3) and well outside it
+        return Hiding(truth={"n_0": 0.3 * amplitude},
+                      levels=((1.0, 2.0, 0.4, -1.0, -2.0, -0.4), (1.5, 0.6, -1.5, 2.2, 0.3, -0.6)))

@@ -2,9 +2,21 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
+import dataclasses
+from typing import TYPE_CHECKING, Any, ClassVar
 
-from seafmu.identification.effects.base import CatalogueEffect, fmt, register, static_force_speed, unit, words
+import numpy as np
+
+from seafmu.identification.effects.base import (
+    CatalogueEffect,
+    Hiding,
+    fmt,
+    register,
+    replace_matrix,
+    static_force_speed,
+    unit,
+    words,
+)
 
 if TYPE_CHECKING:
     from seafmu.identification.trial import Trial
@@ -13,6 +25,14 @@ if TYPE_CHECKING:
 @register
 class LinearDamping(CatalogueEffect):
     name = "linear_damping"
+    meaning = "drag term proportional to v missing"
+    params = ("d_L",)
+    observable_in = "static force-speed, decay, step, 2nd-order decay whose baseline lacks the linear term"
+    position = 1
+    units: ClassVar[dict[str, tuple[str, bool]]] = {"d_L": ("damping_L", True)}
+    families = ("first", "second")
+    demo_kinds = ("decay", "static")
+    plant = ("surge_decay", "vessel D_L[0][0] = 8 N/(m/s); trial baseline: quadratic")
 
     def timeseries_start_grid(self, s: dict[str, float], vals: dict[str, float], model: Any,
                               preps: list[Any]) -> list[dict[str, float]]:
@@ -30,3 +50,21 @@ class LinearDamping(CatalogueEffect):
         what, _, _ = words(trial)
         return (f"the {what} damping has a missing linear (viscous/skin-friction) part, "
                 f"d_L = {fmt(params.get('d_L', 0))} {unit('d_L', trial)}")
+
+    def static_term(self, x: np.ndarray, w: np.ndarray, v: dict[str, float]) -> np.ndarray | None:
+        return v["d_L"] * w if "d_L" in v else None
+
+    def regressors(self, family: str, pos: np.ndarray | None, speed: np.ndarray, acc: np.ndarray,
+                   u: np.ndarray | None) -> dict[str, np.ndarray]:
+        return {"d_L": -speed}
+
+    def hide(self, kind: str, amplitude: float) -> Hiding:
+        # the truth has the term (decay: a larger one, to be seen beside d_Q); the baseline lacks it
+        return Hiding(truth={"d_L": 8.0} if kind == "decay" else {}, baseline="quadratic")
+
+    def hide_in_plant(self, kind: str, amplitude: float) -> Hiding:
+        return Hiding(vessel=_surge_d_L_8, baseline="quadratic")
+
+
+def _surge_d_L_8(spec: Any) -> Any:
+    return dataclasses.replace(spec, D_L=replace_matrix(spec.D_L, {(0, 0): 8.0}))

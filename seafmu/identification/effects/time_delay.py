@@ -5,7 +5,9 @@ from __future__ import annotations
 import math
 from typing import TYPE_CHECKING, Any, ClassVar
 
-from seafmu.identification.effects.base import CatalogueEffect, fmt, register
+import numpy as np
+
+from seafmu.identification.effects.base import CatalogueEffect, Hiding, fmt, register
 
 if TYPE_CHECKING:
     from seafmu.identification.trial import Trial
@@ -14,7 +16,16 @@ if TYPE_CHECKING:
 @register
 class TimeDelay(CatalogueEffect):
     name = "time_delay"
+    meaning = "pure transport delay between command and response"
+    params = ("t_d",)
+    observable_in = "step"
+    position = 11
+    units: ClassVar[dict[str, tuple[str, bool]]] = {"t_d": ("time", False)}
     timeseries_bounds: ClassVar[dict[str, tuple[float, float]]] = {"t_d": (0.0, math.inf)}
+    families = ("first",)
+    input_stage = 10  # first: the command arrives late
+    demo_kinds = ("step",)
+    plant_missing = "commands act at the next plant step; there is no transport delay"
 
     def timeseries_start_grid(self, s: dict[str, float], vals: dict[str, float], model: Any,
                               preps: list[Any]) -> list[dict[str, float]]:
@@ -27,3 +38,11 @@ class TimeDelay(CatalogueEffect):
 
     def evidence(self, params: dict[str, float], trial: Trial) -> str:
         return f"the response starts {fmt(params.get('t_d', 0))} s after the command (transport delay)"
+
+    def command(self, t: np.ndarray, x: np.ndarray, v: dict[str, float], uniform: bool) -> tuple[
+            np.ndarray, bool]:
+        td = v.get("t_d", 0.0)
+        return (np.interp(t - td, t, x) if td > 0 else x), False
+
+    def hide(self, kind: str, amplitude: float) -> Hiding:
+        return Hiding(truth={"t_d": 0.5})
