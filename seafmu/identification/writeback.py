@@ -357,3 +357,68 @@ def write_vessel_file(trial: Trial, fit: FitResult, out_path: Path, method: str,
     path = write_back(name, updates, out_path, prov)
     extra = f" ({'; '.join(notes)})" if notes else ""
     return f"wrote {', '.join(f'{k} = {v:.5g}' for k, v in updates.items())} to {path}{extra}", path
+
+
+# -- a lost thruster: its efficiency into a scenario -------------------------------------------------
+
+def efficiency_updates(fit: FitResult, efficiency: np.ndarray | None = None) -> tuple[dict[str, float],
+                                                                                       dict[str, str]]:
+    """(plant parameters, 95 % CI text per parameter) from a maneuver fit with ``thruster_loss``:
+    ``thruster_efficiency_<i>`` = the fitted eta_T[i] times the efficiency the log was read with
+    (``efficiency``, the vessel file's; 1 if not given), so a rerun's plant carries the loss."""
+    from seafmu.identification.effects.thruster_loss import thruster_of
+
+    updates: dict[str, float] = {}
+    cis: dict[str, str] = {}
+    for name in fit.param_names:
+        i = thruster_of(name)
+        if i is None:
+            continue
+        base = 1.0 if efficiency is None else float(efficiency[i])
+        key = f"thruster_efficiency_{i + 1}"
+        updates[key] = base * fit.params[name]
+        lo, hi = fit.ci95.get(name, (float("nan"), float("nan")))
+        cis[key] = f"95 % CI [{base * lo:.4g}, {base * hi:.4g}]"
+    return updates, cis
+
+
+def write_scenario_parameters(scenario: str | Path, updates: dict[str, float], out_path: Path,
+                              provenance: dict[str, str], instance: str = "plant") -> Path:
+    """A copy of a scenario with parameters of one FMU instance set (e.g. the plant's
+    ``thruster_efficiency_3`` from ``efficiency_updates``); the description records what was
+    identified from which trial, with the CIs. The copy is validated with ``load_scenario`` before
+    it replaces anything. The scenario is rewritten as YAML: comments of the original are not kept
+    (a header comment says so)."""
+    from seafmu.scenario import ScenarioError, load_scenario, scenario_path
+
+    src = scenario_path(scenario)
+    doc = yaml.safe_load(src.read_text())
+    fmus = doc.get("fmus") if isinstance(doc, dict) else None
+    node = fmus.get(instance) if isinstance(fmus, dict) else None
+    if not isinstance(node, dict):
+        raise ScenarioError(f"write_scenario_parameters: {src} has no FMU instance '{instance}'")
+    params = dict(node.get("parameters") or {})
+    params.update({k: float(v) for k, v in updates.items()})
+    node["parameters"] = params
+    date = provenance.get("date") or _dt.date.today().isoformat()
+    what = ", ".join(f"{instance}.{k} = {v:.4g}" + (f" ({provenance[k]})" if provenance.get(k) else "")
+                     for k, v in updates.items())
+    origin = "; ".join(f"{k} {provenance[k]}" for k in ("trial", "method") if provenance.get(k))
+    doc["description"] = (f"{str(doc.get('description', '')).strip()} Identified on {date}: {what}"
+                          f"{'; ' + origin if origin else ''}.").strip()
+    out_path = Path(out_path)
+    if not out_path.parent.is_dir():
+        raise ScenarioError(f"write_scenario_parameters: {out_path}: the folder {out_path.parent} does not "
+                            "exist (it is not created)")
+    header = (f"# Written by seafmu write_scenario_parameters on {date} from {src} (comments of that file "
+              "are not kept).\n")
+    tmp = out_path.with_name(f".{out_path.stem}.writeback-tmp.yaml")
+    tmp.write_text(header + yaml.safe_dump(doc, sort_keys=False))  # key order is the FMU stepping order
+    try:
+        load_scenario(tmp)
+    except ScenarioError as exc:
+        tmp.unlink(missing_ok=True)
+        raise ScenarioError(f"write_scenario_parameters: the written scenario did not validate ({exc}); "
+                            "nothing written") from None
+    os.replace(tmp, out_path)
+    return out_path
