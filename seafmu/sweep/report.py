@@ -285,6 +285,7 @@ def _md_table(head: list[str], rows: list[list[str]]) -> list[str]:
 
 def write_study_report(study: Study, outcome: Any, out: Path) -> tuple[Path, list[str]]:
     """report.md and its figures in the study folder; returns its path and the worst-case lines."""
+    # Long because the report is one document written top to bottom, section after section.
     from seafmu.sweep.execute import cases_frame
 
     frame = cases_frame(study, outcome.rows)

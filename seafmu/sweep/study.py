@@ -336,6 +336,8 @@ def case_key(scenario_text: bytes, overrides: list[str], seed: int | None, extra
 
 def load_study(path: str | Path, validate: bool = True) -> Study:
     """Read a study file, make its cases and (``validate``) check each one as a scenario."""
+    # Long because it is the study's checks in file order, each with its one-line error, then the
+    # case design (grids crossed with samples crossed or paired with seeds) they lead to.
     path = Path(path)
     doc = read_mapping(path, "study", StudyError)
     try:
