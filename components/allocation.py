@@ -715,7 +715,7 @@ class AllocatorBlock(Block):
 
     def step(self, t: float, h: float, u: np.ndarray) -> np.ndarray:
         u = np.asarray(u, dtype=float)
-        if u.shape != (len(self.inp),):
+        if u.shape != self._in_shape:
             raise ValueError(f"allocator: expected {len(self.inp)} inputs, got {u.shape}")
         tau = u[self._in_tau]
         if not np.isfinite(u).all():

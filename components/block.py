@@ -179,6 +179,7 @@ class Block(ABC):
             p.check(self.params[p.name], self.kind)
         self.inp = iface.input_slots()
         self.out = iface.output_slots()
+        self._in_shape = (len(self.inp),)  # what step() checks u against, once per step
 
     def start(self, u: np.ndarray) -> np.ndarray:
         """Initial outputs given the initial inputs (propagated from upstream blocks at t = 0).

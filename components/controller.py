@@ -173,7 +173,7 @@ class ControllerBlock(Block):
     def start(self, u: np.ndarray) -> np.ndarray:
         """Bumpless start: the reference model begins at the initial estimate, no force yet."""
         u = np.asarray(u, dtype=float)
-        if u.shape == (len(self.inp),) and np.isfinite(u).all():
+        if u.shape == self._in_shape and np.isfinite(u).all():
             self._start_law(u)
             self._started = True
         return self.output()
@@ -183,7 +183,7 @@ class ControllerBlock(Block):
 
     def step(self, t: float, h: float, u: np.ndarray) -> np.ndarray:
         u = np.asarray(u, dtype=float)
-        if u.shape != (len(self.inp),):
+        if u.shape != self._in_shape:
             raise ValueError(f"controller: expected {len(self.inp)} inputs, got {u.shape}")
         if not np.isfinite(u).all():
             bad = [n for n, v in zip(self.inp.names, u.tolist(), strict=True) if not math.isfinite(v)]

@@ -547,7 +547,7 @@ class ObserverBlock(Block):
 
     def _checked(self, u: np.ndarray) -> np.ndarray:
         u = np.asarray(u, dtype=float)
-        if u.shape != (len(self.inp),):
+        if u.shape != self._in_shape:
             raise ValueError(f"observer: expected {len(self.inp)} inputs, got {u.shape}")
         if not np.isfinite(u).all():
             bad = [n for n, v in zip(self.inp.names, u.tolist(), strict=True) if not math.isfinite(v)]
