@@ -40,7 +40,7 @@ class TestplanResult:
 
 def identify_measurements(vessel: VesselSpec, measurements: dict[str, Measurement]) -> dict[str, AxisResult]:
     """Fit every trial, then the coupled terms."""
-    results = {name: identify_axis(m) for name, m in measurements.items()}
+    results = {name: identify_axis(m, vessel) for name, m in measurements.items()}
     coupled_terms(results, measurements, 0.5 * (vessel.M + vessel.M.T), vessel.D_L, vessel.tau_names)
     return results
 

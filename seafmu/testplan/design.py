@@ -33,6 +33,9 @@ PHASE_MIN, PHASE_MAX = 20.0, 600.0  # s, bounds of one phase
 RELEASE_ANGLE = math.radians(10.0)  # roll/pitch release angle
 DECAY2_PERIODS = 8.0  # roll/pitch record length in natural periods
 DECAY2_MAX = 120.0  # s
+# a roll/pitch release leaves free the DOFs its inertia couples to (|M_kj| / sqrt(M_kk M_jj) above
+# this): holding them against the swing takes energy out of it (Minerva 2 roll: sway and yaw)
+COUPLED_FREE = 0.05
 
 # body axis -> (tau name, NED DOF whose gains are zeroed, nu name, joystick axis)
 AXES = {
@@ -64,6 +67,7 @@ class TrialPlan:
     angle0: float = 0.0
     mass: float = 0.0  # the file's inertia of the DOF (M_jj, total)
     prior: dict[str, float] = field(default_factory=dict)  # the file's d_L, d_Q (and c)
+    free: list[str] = field(default_factory=list)  # other NED DOFs left free (release trials)
 
     @property
     def name(self) -> str:
@@ -131,11 +135,19 @@ def plan(vessel: VesselSpec, scale: float = 1.0) -> list[TrialPlan]:
             if c <= 0.0:
                 continue  # no restoring: nothing oscillates
             tp.prior["c"] = c
+            tp.free = coupled_dofs(vessel, j)
             period = 2.0 * math.pi / math.sqrt(c / m)
             tp.angle0 = RELEASE_ANGLE
             tp.duration = float(round(min(max(DECAY2_PERIODS * period, PHASE_MIN), DECAY2_MAX) * scale))
         trials.append(tp)
     return trials
+
+
+def coupled_dofs(vessel: VesselSpec, j: int) -> list[str]:
+    """NED DOFs whose inertia couples to body DOF j beyond ``COUPLED_FREE`` (nu and eta align)."""
+    M = 0.5 * (vessel.M + vessel.M.T)
+    return [vessel.eta_names[i] for i in range(vessel.dof)
+            if i != j and abs(M[j, i]) > COUPLED_FREE * math.sqrt(M[j, j] * M[i, i])]
 
 
 def master_step(vessel: VesselSpec) -> float:
@@ -148,8 +160,9 @@ def scenario_doc(tp: TrialPlan, vessel: VesselSpec, hardware: str | None, seed: 
     """The scenario (as YAML data) of one trial."""
     step = master_step(vessel)
     ctrl: dict[str, Any] = {"controller_variant": "axis_trial"}
-    for g in ("kp", "kd", "ki"):
-        ctrl[f"{g}_{tp.dof}"] = 0.0
+    for dof in (tp.dof, *tp.free):
+        for g in ("kp", "kd", "ki"):
+            ctrl[f"{g}_{dof}"] = 0.0
     events: list[dict[str, Any]] = []
     if tp.joy is not None:
         ctrl[f"joy_max_{tp.tau}"] = round(tp.force_hold, 6)

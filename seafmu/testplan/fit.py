@@ -14,8 +14,12 @@ Per body axis (surge, sway, yaw), from one accelerate-hold-release-step record:
    tau_k = D_kj v_j at steady state (Fossen's D = -[[.., Y_v, Y_r], [.., N_v, N_r]]). A line through
    the steady levels (rest, step, hold) gives D_kj = -N_v (sway trial, yaw moment) and -Y_r (yaw
    trial, sway force); the intercept takes any constant offset (trim, current);
-5. roll and pitch: the release from an angle fitted as m_eff phi'' + d phi' (+ d_Q phi'|phi'|)
-   + c phi = 0 (restoring included, as the brief asks): c, d and zeta = d / (2 sqrt(c m_eff)).
+5. roll and pitch: the release from an angle (the DOFs its inertia couples to left free, so no
+   hold takes energy out of the swing) fitted first as the plan's 1-DOF free oscillation
+   m_eff phi'' + d phi' (+ d_Q phi'|phi'|) + c phi = 0 (restoring included, as the brief asks):
+   omega_n, zeta; then, for the coefficient written, as row k of the 6-DOF model with the other
+   DOFs' measured motion and the thrusters' measured moment as inputs (``coupled_release_fit``):
+   the coupled motion no longer reads as damping.
 """
 
 from __future__ import annotations
@@ -25,13 +29,25 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from scipy.optimize import least_squares
+from scipy.signal import butter, sosfiltfilt
 
-from seafmu.identification.fitting import FitResult
+from seafmu.components.dynamics import restoring_coefficients
+from seafmu.components.vessel_spec import VesselSpec
+from seafmu.identification.fitting import (
+    FitResult,
+    aic_bic,
+    correlation_warnings,
+    fit_statistics,
+    nrmse,
+    whiteness_test,
+)
 from seafmu.identification.timeseries import TSModel, baseline_model, fit_timeseries
 from seafmu.identification.trial import Run, Trial, make_trial
 from seafmu.testplan.design import AXES, TrialPlan
 from seafmu.testplan.measure import Measurement
 
+INPUT_CUTOFF = 3.0  # low-pass of a release's measured inputs, in natural frequencies
 PROVENANCE = "seafmu testplan: simulated or measured trial, sensors as the vessel file states them"
 
 
@@ -72,8 +88,9 @@ def _free_damping(tp: TrialPlan) -> list[str]:
     return {"linear": ["d_L"], "quadratic": ["d_Q"], "linear_quadratic": ["d_L", "d_Q"]}[_baseline(tp)]
 
 
-def identify_axis(m: Measurement) -> AxisResult:
-    """Fit one trial (method one, or a roll/pitch release)."""
+def identify_axis(m: Measurement, vessel: VesselSpec | None = None) -> AxisResult:
+    """Fit one trial (method one, or a roll/pitch release; the coupled fit of a release needs
+    the vessel's model of the other DOFs)."""
     tp = m.plan
     res = AxisResult(tp)
     consts = {"mass": tp.mass}
@@ -90,13 +107,19 @@ def identify_axis(m: Measurement) -> AxisResult:
         model = baseline_model(tr)
         free = [p for p in model.free if p not in ("d_L", "d_Q")] + _free_damping(tp)
         model = TSModel("second", dict(model.values), [*free, "m_a"], restoring=model.restoring)
-        res.fits["record"] = fit_timeseries(tr, model)
-        v = res.fits["record"].extras["values"]
+        res.fits["decay"] = fit_timeseries(tr, model)
+        v = res.fits["decay"].extras["values"]
         m_eff = v["M"] + v["m_a"]
         if v["c"] > 0 and m_eff > 0:
             res.method_one["natural_frequency"] = math.sqrt(v["c"] / m_eff)
             res.method_one["zeta"] = v["d_L"] / (2.0 * math.sqrt(v["c"] * m_eff))
             res.method_one["m_eff"] = m_eff
+        if vessel is not None and m.eta is not None:
+            start = {p: float(res.fits["decay"].params.get(p, tp.prior.get(p, 0.0)))
+                     for p in _free_damping(tp)}
+            res.fits["record"] = coupled_release_fit(m, vessel, start)
+        else:
+            res.fits["record"] = res.fits["decay"]
         return res
 
     lead = 2.0  # s of rest before a segment: the fit sees the force start
@@ -132,6 +155,164 @@ def identify_axis(m: Measurement) -> AxisResult:
     mo["d_step"] = F / v_ss if v_ss != 0 else math.nan
     mo["m_method_one"] = mo["d_step"] * mo["T_decay"]
     return res
+
+
+def _axpy(a: list[float], c: float, b: list[float]) -> list[float]:
+    return [x + c * y for x, y in zip(a, b, strict=True)]
+
+
+class _ReleaseModel:
+    """Row block b (the released DOF and the DOFs left free with it) of the 6-DOF model.
+
+    The held DOFs' measured velocities, the other angles and the thrusters' measured forces are
+    inputs, low-passed (zero phase, ``INPUT_CUTOFF`` natural frequencies: their sensor noise would
+    otherwise enter the free DOFs' motion); the free DOFs' velocities and the released angle are
+    states, so no noisy measurement of a free DOF enters the model. Momentum form:
+    h_b = M_bb z + M_bh nu_h, h_b' = tau_b - D(nu)_b - C(nu)_b - g(eta)_b, z = M_bb^-1 (h_b - M_bh nu_h).
+    """
+
+    def __init__(self, m: Measurement, vessel: VesselSpec) -> None:
+        tp = m.plan
+        d = vessel.dof
+        self.k = tp.index
+        self.b = [self.k] + [vessel.eta_names.index(f) for f in tp.free]
+        self.h = [i for i in range(d) if i not in self.b]
+        M = 0.5 * (vessel.M + vessel.M.T)
+        self.M = M.tolist()
+        self.Mbb = M[np.ix_(self.b, self.b)]
+        self.DL, self.DQ = vessel.D_L.tolist(), vessel.D_Q.tolist()
+        self.coriolis = vessel.coriolis != "none"
+        rs = vessel.restoring
+        self.g = restoring_coefficients(rs.weight, rs.buoyancy, rs.r_g, rs.r_b)
+        nu = np.where(np.isfinite(m.nu), m.nu, 0.0)
+        eta = np.where(np.isfinite(m.eta), m.eta, 0.0) if m.eta is not None else np.zeros_like(nu)
+        tau = m.tau
+        fs = 1.0 / float(np.median(np.diff(m.t)))
+        fc = INPUT_CUTOFF * math.sqrt(tp.prior["c"] / tp.mass) / (2.0 * math.pi)
+        if fc < 0.45 * fs and len(m.t) > 30:
+            sos = butter(2, fc, fs=fs, output="sos")
+            nu, eta, tau = (sosfiltfilt(sos, a, axis=0) for a in (nu, eta, tau))
+        self.t = m.t - m.t[0]
+        self.nu_h = nu.tolist()  # the block's columns are overwritten by the states
+        self.eta = eta[:, 3:5].tolist()
+        self.mom = (nu[:, self.h] @ M[np.ix_(self.b, self.h)].T).tolist()
+        self.tau = tau[:, self.b].tolist()
+
+    def simulate(self, mass_k: float, dL: float, dQ: float, x0: float, z0: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+        """RK4 on the sample times, inputs linear between samples: (angle, rate of DOF k)."""
+        b, k, nb = self.b, self.k, len(self.b)
+        Mbb = self.Mbb.copy()
+        Mbb[0, 0] = mass_k
+        Minv = np.linalg.inv(Mbb).tolist()
+        M, DL, DQ = self.M, [r[:] for r in self.DL], [r[:] for r in self.DQ]
+        DL[k][k], DQ[k][k] = dL, dQ
+        _, gx, gy, gz = self.g
+        wb = self.g[0]
+        roll = k == 3
+        nuh, eta, mom, tau, t = self.nu_h, self.eta, self.mom, self.tau, self.t
+        cos, sin, tan = math.cos, math.sin, math.tan
+
+        def f(x: float, hb: list[float], i: int, j: int) -> tuple[float, list[float]]:
+            nu = [0.5 * (nuh[i][c] + nuh[j][c]) for c in range(6)]
+            mo = [0.5 * (mom[i][r] + mom[j][r]) for r in range(nb)]
+            z = [sum(Minv[r][c] * (hb[c] - mo[c]) for c in range(nb)) for r in range(nb)]
+            for r in range(nb):
+                nu[b[r]] = z[r]
+            phi_m, th_m = 0.5 * (eta[i][0] + eta[j][0]), 0.5 * (eta[i][1] + eta[j][1])
+            phi, th = (x, th_m) if roll else (phi_m, x)
+            sp, cp, st, ct = sin(phi), cos(phi), sin(th), cos(th)
+            g = [wb * st, -wb * ct * sp, -wb * ct * cp, -gy * ct * cp + gz * ct * sp,
+                 gz * st + gx * ct * cp, -gx * ct * sp - gy * st]
+            u, v, w, p, q, r = nu
+            if self.coriolis:
+                a1, a2, a3, b1, b2, b3 = (sum(M[i2][c] * nu[c] for c in range(6)) for i2 in range(6))
+                cor = [q * a3 - r * a2, r * a1 - p * a3, p * a2 - q * a1,
+                       v * a3 - w * a2 + q * b3 - r * b2, w * a1 - u * a3 + r * b1 - p * b3,
+                       u * a2 - v * a1 + p * b2 - q * b1]
+            else:
+                cor = [0.0] * 6
+            aq = [abs(c) * c for c in nu]
+            dh = [0.5 * (tau[i][rr] + tau[j][rr]) - cor[row] - g[row]
+                  - sum(DL[row][c] * nu[c] + DQ[row][c] * aq[c] for c in range(6))
+                  for rr, row in enumerate(b)]
+            dx = p + tan(th) * (sp * q + cp * r) if roll else cp * q - sp * r
+            return dx, dh
+
+        n = len(t)
+        xs, ws = np.empty(n), np.empty(n)
+        x = x0
+        hb = [float(v) for v in (Mbb @ z0 + np.asarray(mom[0]))]
+        xs[0], ws[0] = x0, float(z0[0])
+        for i in range(n - 1):
+            dt = t[i + 1] - t[i]
+            k1x, k1h = f(x, hb, i, i)
+            k2x, k2h = f(x + 0.5 * dt * k1x, _axpy(hb, 0.5 * dt, k1h), i, i + 1)
+            k3x, k3h = f(x + 0.5 * dt * k2x, _axpy(hb, 0.5 * dt, k2h), i, i + 1)
+            k4x, k4h = f(x + dt * k3x, _axpy(hb, dt, k3h), i + 1, i + 1)
+            x += dt / 6.0 * (k1x + 2.0 * k2x + 2.0 * k3x + k4x)
+            hb = [a + dt / 6.0 * (c1 + 2.0 * c2 + 2.0 * c3 + c4)
+                  for a, c1, c2, c3, c4 in zip(hb, k1h, k2h, k3h, k4h, strict=True)]
+            xs[i + 1] = x
+            ws[i + 1] = sum(Minv[0][c] * (hb[c] - mom[i + 1][c]) for c in range(nb))
+        return xs, ws
+
+
+def coupled_release_fit(m: Measurement, vessel: VesselSpec, start: dict[str, float]) -> FitResult:
+    """Output-error fit of a roll/pitch release as the free DOFs' rows of the 6-DOF model.
+
+    ``_ReleaseModel``: the released DOF and the DOFs left free with it are simulated, the held
+    ones' measured motion and the thrusters' measured forces are inputs; the released angle and its
+    rate are the outputs (each weighted by its sensor noise). Free parameters: the damping terms
+    the file's model has on the axis, an inertia correction m_a (the scale comes from the file's
+    restoring, as in the 1-DOF fit), the initial angle and the free DOFs' initial velocities. The
+    file's coupling inertias, the other DOFs' damping and Coriolis are used as they are: what the
+    trial measures is the axis' own damping.
+    """
+    tp = m.plan
+    k = tp.index
+    sim = _ReleaseModel(m, vessel)
+    nb = len(sim.b)
+    mass = float(sim.Mbb[0, 0])
+    fixed = {"d_L": float(vessel.D_L[k, k]), "d_Q": float(vessel.D_Q[k, k])}
+    znames = [f"{vessel.nu_names[i]}0" for i in sim.b]
+    names = [*start, "m_a", "x0", *znames]
+    rate = m.nu[:, k]
+    sig_rate = m.noise_nu.get(tp.nu, 0.0)
+    use_rate = bool(np.isfinite(rate).all()) and sig_rate > 0.0
+    z_start = [float(m.nu[0, i]) if np.isfinite(m.nu[0, i]) else 0.0 for i in sim.b]
+    p0 = np.array([*start.values(), 0.0, float(m.y[0]), *z_start])
+    scale = np.array([max(abs(v), 1e-3 * mass) for v in start.values()] + [0.1 * mass, 0.01] + [0.01] * nb)
+
+    def model(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        v = dict(zip(names, p, strict=True))
+        return sim.simulate(mass + v["m_a"], v.get("d_L", fixed["d_L"]), v.get("d_Q", fixed["d_Q"]),
+                            v["x0"], p[len(start) + 2:])
+
+    def resid(zz: np.ndarray) -> np.ndarray:
+        x, w = model(p0 + scale * zz)
+        r = (x - m.y) / max(m.noise, 1e-12)
+        if use_rate:
+            r = np.concatenate([r, (w - rate) / sig_rate])
+        return np.where(np.isfinite(r), r, 1e6)
+
+    sol = least_squares(resid, np.zeros(len(p0)), xtol=1e-8, ftol=1e-10)
+    p = p0 + scale * sol.x
+    r = sol.fun
+    ci, corr, nonid = fit_statistics(names, p, sol.jac / scale, r)
+    x, w = model(p)
+    keep = [*start, "m_a"]
+    aic, bic = aic_bic(float(np.sum(r**2)), r.size, len(p))
+    return FitResult(
+        params={n: float(v) for n, v in zip(names, p, strict=True) if n in keep},
+        ci95={n: ci[n] for n in keep}, correlation=corr, param_names=names, nonidentifiable=nonid,
+        nrmse_fit=nrmse(m.y, x), nrmse_validation=float("nan"), aic=aic, bic=bic,
+        whiteness=whiteness_test(x - m.y), warnings=correlation_warnings(names, corr),
+        n_samples=len(m.t), method="coupled output error (the free DOFs' rows of the 6-DOF model)",
+        extras={"predictions": [{"run": "fit", "t": sim.t, "yhat": x, "rate": w}],
+                "values": {**fixed, **dict(zip(names, (float(v) for v in p), strict=True)), "M": mass},
+                "uses_rate": use_rate, "free_dofs": [vessel.nu_names[i] for i in sim.b],
+                "nfev": sol.nfev})
 
 
 def steady_levels(m: Measurement) -> dict[str, dict[str, float]]:

@@ -44,6 +44,8 @@ class Measurement:
     source: str  # how y was measured, in words
     noise: float  # sensor noise std of y's channel(s) as the vessel file states it
     scenario: Path | None = None
+    eta: np.ndarray | None = None  # (n, dof) measured pose at t (nan where no sensor has it)
+    noise_nu: dict[str, float] = field(default_factory=dict)  # noise std per nu channel
     truth: dict[str, np.ndarray] = field(default_factory=dict)  # true states (simulation only)
     wall: float = 0.0
 
@@ -129,6 +131,21 @@ def body_velocities(vessel: VesselSpec, result: RunResult, t_grid: np.ndarray, s
     return nu, how, noise
 
 
+def measured_pose(vessel: VesselSpec, result: RunResult, t_grid: np.ndarray) -> np.ndarray:
+    """The pose channels a sensor measures, at ``t_grid`` (angles unwrapped); nan elsewhere."""
+    eta = np.full((len(t_grid), vessel.dof), np.nan)
+    for j, name in enumerate(vessel.eta_names):
+        s = _sensor_of(vessel, name)
+        if s is None:
+            continue
+        idx = _samples(result, s[0])
+        ys = result.signals[f"plant.meas_{name}"][idx]
+        if name in ("roll", "pitch", "yaw"):
+            ys = np.unwrap(ys)
+        eta[:, j] = np.interp(t_grid, result.time[idx], ys)
+    return eta
+
+
 def measure(tp: TrialPlan, vessel: VesselSpec, result: RunResult) -> Measurement:
     """The trial's measured signals from a run's log."""
     if not result.complete:
@@ -161,4 +178,5 @@ def measure(tp: TrialPlan, vessel: VesselSpec, result: RunResult) -> Measurement
     truth = {k.split(".", 1)[1]: v for k, v in result.signals.items()
              if k.split(".", 1)[1] in vessel.eta_names + vessel.nu_names}
     truth["time"] = t_all
-    return Measurement(tp, t_grid, y, tau, nu, src, sig, truth=truth, wall=result.wall_time)
+    return Measurement(tp, t_grid, y, tau, nu, src, sig, truth=truth, wall=result.wall_time,
+                       eta=measured_pose(vessel, result, t_grid), noise_nu=noise)

@@ -122,13 +122,23 @@ def write_report(res: Any, out: Path) -> Path:
                              f"D[{tau},{tp.nu}] = {dkj:.5g}")
                 L.append("")
         else:
-            f = r.fits["record"]
-            L += [f"Released from {math.degrees(tp.angle0):.3g} deg, free oscillation fitted as "
-                  "m_eff phi'' + d phi' (+ d_Q phi'|phi'|) + c phi = 0 (restoring included): "
-                  + ", ".join(f"{k} = {val:.5g}" for k, val in f.params.items())
+            f1, f = r.fits["decay"], r.fits["record"]
+            free = ", ".join(tp.free) if tp.free else "none"
+            names = coefficient_names(tp.axis)
+            L += [f"1. **Release** from {math.degrees(tp.angle0):.3g} deg, {tp.dof} free and the DOFs its "
+                  f"inertia couples to left free too ({free}); the others held by `axis_trial`.",
+                  "2. **Free oscillation** (the plan's 1-DOF model) m_eff phi'' + d phi' (+ d_Q phi'|phi'|) "
+                  "+ c phi = 0, restoring from the file: "
+                  + ", ".join(f"{k} = {val:.5g}" for k, val in f1.params.items())
                   + f"; omega_n = {r.method_one.get('natural_frequency', float('nan')):.4g} rad/s, "
                   f"zeta (linear part) = {r.method_one.get('zeta', float('nan')):.3g}; "
-                  f"NRMSE {f.nrmse_fit:.3g}.", ""]
+                  f"NRMSE {f1.nrmse_fit:.3g}.",
+                  f"3. **Coefficient written**: {f.method}: the free DOFs "
+                  f"({', '.join(f.extras.get('free_dofs', [tp.nu]))}) simulated, the held DOFs' measured "
+                  "motion and the thrusters' measured forces as inputs, the angle"
+                  + (" and its rate" if f.extras.get("uses_rate") else "") + " as outputs: "
+                  + ", ".join(f"{names.get(k, k)} = {val:.5g}" for k, val in f.params.items())
+                  + f"; NRMSE {f.nrmse_fit:.3g}.", ""]
         for w in r.fits["record"].warnings:
             L.append(f"- warning: {w}")
         L += [f"![{name}]({figs[list(res.results).index(name)]})", ""]
