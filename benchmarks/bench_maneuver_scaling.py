@@ -12,6 +12,12 @@ log(rows) between consecutive sizes and over the whole range (1 = linear, 2 = qu
                                                 [--dt 0.1] [--noise 1.0] [--method both|ls|output_error]
 
 Goal (issue 8): 100 000 rows in under 60 s and under 2 GB on the 2-core machine.
+
+Issue 13 (compiled simulator): each size also runs with the former NumPy simulator swapped in
+(``--numpy-sim`` in the child: the batched RK4 of before, NumPy calls on (K, S, ...) arrays per
+step), interleaved with the compiled one, each child fitting ``--repeat`` times; the table gives the
+first fit (compiled: includes loading the cached kernels) and the best, and the ratio of the best
+output-error fits NumPy / compiled (goal: >= 5 at 10 000 rows). ``--no-compare`` skips it.
 """
 
 from __future__ import annotations
@@ -27,6 +33,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 
 def _rss_mb() -> float:
@@ -44,11 +51,74 @@ def _rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # Linux: KiB
 
 
-def child(path: str, vessel_name: str, method: str) -> None:
+def numpy_simulate(x0: Any, tau: Any, tau_mid: Any, W: Any, h: float, d: int, g4: Any, cur: bool, vc: Any,
+                   psi: Any, psi_mid: Any, out: Any) -> None:
+    """The simulator's RK4 as it was before issue 13 (NumPy on (K, S, ...) arrays, one step at a
+    time), with the compiled kernel's signature (``components/kernels/maneuver.simulate``)."""
+    import numpy as np
+
+    K = x0.shape[0]
+    L = out.shape[2] - 1
+    wb, gx, gy, gz = g4.tolist()
+
+    def f(x: Any, tau_k: Any, p: Any) -> Any:
+        o = 2 if d == 6 else 0
+        nu = x[..., o:]
+        if d == 6:
+            phi, th = x[..., 0], x[..., 1]
+            sp, cp, st, ct = np.sin(phi), np.cos(phi), np.sin(th), np.cos(th)
+            g = np.stack([wb * st, -wb * ct * sp, -wb * ct * cp, -gy * ct * cp + gz * ct * sp,
+                          gz * st + gx * ct * cp, -gx * ct * sp - gy * st], axis=-1)
+            force = tau_k - g
+        else:
+            force = np.broadcast_to(tau_k, nu.shape)
+        nn = (nu[..., :, None] * nu[..., None, :]).reshape(*nu.shape[:-1], -1)
+        if cur:
+            cs, sn = np.cos(p), np.sin(p)
+            vn, ve = vc[:, 0, None], vc[:, 1, None]
+            nuc = np.zeros_like(nu)
+            if d == 3:
+                nuc[..., 0], nuc[..., 1] = cs * vn + sn * ve, -sn * vn + cs * ve
+            else:
+                nuc[..., 0] = cs * ct * vn + sn * ct * ve
+                nuc[..., 1] = (-sn * cp + cs * st * sp) * vn + (cs * cp + sp * st * sn) * ve
+                nuc[..., 2] = (sn * sp + cs * cp * st) * vn + (-cs * sp + st * sn * cp) * ve
+            nur = nu - nuc
+            nnr = (nur[..., :, None] * nur[..., None, :]).reshape(*nur.shape[:-1], -1)
+            z = np.concatenate([np.broadcast_to(force, nu.shape), nn, nnr, nur, np.abs(nur) * nur], axis=-1)
+        else:
+            z = np.concatenate([force, nn, nu, np.abs(nu) * nu], axis=-1)
+        nu_dot = np.matmul(z, W)
+        if d == 3:
+            return nu_dot
+        p_, q_, r_ = nu[..., 3], nu[..., 4], nu[..., 5]
+        return np.concatenate([(p_ + (sp * q_ + cp * r_) * np.tan(th))[..., None],
+                               (cp * q_ - sp * r_)[..., None], nu_dot], axis=-1)
+
+    x = x0.copy()
+    out[:, :, 0] = x
+    with np.errstate(all="ignore"):
+        for k in range(L):
+            p0, pm, p1 = (psi[None, :, k], psi_mid[None, :, k], psi[None, :, k + 1]) if cur else (None,) * 3
+            k1 = f(x, tau[:, :, k], p0)
+            k2 = f(x + 0.5 * h * k1, tau_mid[:, :, k], pm)
+            k3 = f(x + 0.5 * h * k2, tau_mid[:, :, k], pm)
+            k4 = f(x + h * k3, tau[:, :, k + 1], p1)
+            x = x + (h / 6.0) * (k1 + 2.0 * (k2 + k3) + k4)
+            x = np.where(np.abs(x) < 1e6, x, np.nan)
+            out[:, :, k + 1] = x
+    assert K == out.shape[0]
+
+
+def child(path: str, vessel_name: str, method: str, repeat: int = 1, numpy_sim: bool = False) -> None:
     """Identify one log in this (fresh) process; print one JSON line with the figures."""
     from seafmu.components.vessel_spec import load_vessel
     from seafmu.identification.maneuver import identify_maneuver, load_maneuver_csv
 
+    if numpy_sim:
+        from seafmu.components.kernels import maneuver as kernel
+
+        kernel.simulate = numpy_simulate
     vessel = load_vessel(vessel_name)
     base_mb = _rss_mb()  # interpreter, numpy, scipy, the vessel: not the log's
     t0 = time.perf_counter()
@@ -57,9 +127,13 @@ def child(path: str, vessel_name: str, method: str) -> None:
     out: dict[str, float | int | str] = {"rows": data.n, "load_s": t_load, "base_mb": base_mb}
     methods = ("ls", "output_error") if method == "both" else (method,)
     for m in methods:
-        t1 = time.perf_counter()
-        fit = identify_maneuver(data, vessel, method=m)
-        out[f"{m}_s"] = time.perf_counter() - t1
+        times = []
+        for _ in range(max(1, repeat)):
+            t1 = time.perf_counter()
+            fit = identify_maneuver(data, vessel, method=m)
+            times.append(time.perf_counter() - t1)
+        out[f"{m}_s"] = times[0]
+        out[f"{m}_best_s"] = min(times)
         out[f"{m}_nrmse_val"] = fit.nrmse_validation
     out["seconds"] = time.perf_counter() - t0
     out["peak_mb"] = _rss_mb()
@@ -93,6 +167,20 @@ def prefix(src: Path, rows: int, dst: Path) -> Path:
     return dst
 
 
+def _compare(path: Path, vessel: str, repeat: int) -> tuple[dict, dict]:
+    """Best output-error fits with the NumPy and the compiled simulator, children interleaved twice."""
+    best: dict[bool, dict] = {}
+    for _ in range(2):
+        for numpy_sim in (True, False):
+            cmd = [sys.executable, __file__, "--child", str(path), vessel, "--method", "output_error",
+                   "--repeat", str(repeat)] + (["--numpy-sim"] if numpy_sim else [])
+            proc = subprocess.run(cmd, capture_output=True, text=True, check=True)
+            r = json.loads(proc.stdout.strip().splitlines()[-1])
+            if numpy_sim not in best or r["output_error_best_s"] < best[numpy_sim]["output_error_best_s"]:
+                best[numpy_sim] = r
+    return best[True], best[False]
+
+
 def slope(x0: float, y0: float, x1: float, y1: float) -> float:
     return math.log(y1 / y0) / math.log(x1 / x0) if y0 > 0 and y1 > 0 else math.nan
 
@@ -104,10 +192,13 @@ def main() -> None:
     ap.add_argument("--dt", type=float, default=0.1, help="sample interval of the log, s")
     ap.add_argument("--noise", type=float, default=1.0, help="x the vessel file's sensor noise")
     ap.add_argument("--method", choices=("both", "ls", "output_error"), default="both")
+    ap.add_argument("--repeat", type=int, default=3, help="fits per child for the comparison (best counts)")
+    ap.add_argument("--no-compare", action="store_true", help="skip the NumPy-simulator comparison")
+    ap.add_argument("--numpy-sim", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--child", nargs=2, metavar=("CSV", "VESSEL"), help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
-        child(args.child[0], args.child[1], args.method)
+        child(args.child[0], args.child[1], args.method, args.repeat, args.numpy_sim)
         return
     print(f"# {platform.processor() or platform.machine()}, Python {platform.python_version()}; "
           f"{args.vessel}, dt {args.dt:g} s, sensor noise x{args.noise:g}, method {args.method}")
@@ -118,6 +209,7 @@ def main() -> None:
         full = make_log(sizes[-1], args.vessel, args.dt, args.noise, folder)
         print(f"# log of {sizes[-1]} rows made by the plant in {time.perf_counter() - t0:.1f} s")
         results = []
+        compare = []
         for n in sizes:
             path = prefix(full, n, folder / f"log_{n}.csv")
             proc = subprocess.run([sys.executable, __file__, "--child", str(path), args.vessel,
@@ -126,6 +218,8 @@ def main() -> None:
                 print(f"{n:>8} rows: failed (exit {proc.returncode}): {proc.stderr.strip()[-300:]}")
                 continue
             results.append(json.loads(proc.stdout.strip().splitlines()[-1]))
+            if not args.no_compare:
+                compare.append((n, _compare(path, args.vessel, args.repeat)))
     print("|   rows | total s | load s | LS s | OE s | peak MB | above interpreter MB | "
           "held-out NRMSE LS / OE |")
     print("|---:|---:|---:|---:|---:|---:|---:|---|")
@@ -135,6 +229,19 @@ def main() -> None:
               f"{r['peak_mb']:7.0f} | "
               f"{r['peak_mb'] - r['base_mb']:7.0f} | {r.get('ls_nrmse_val', math.nan):.3g} / "
               f"{r.get('output_error_nrmse_val', math.nan):.3g} |")
+    if compare:
+        print("compiled simulator vs the former NumPy simulator (output-error fit, interleaved runs, "
+              f"{args.repeat} fits per run):")
+        print("|   rows | NumPy first / best s | compiled first / best s | ratio (best) | "
+              "held-out NRMSE NumPy / compiled |")
+        print("|---:|---:|---:|---:|---|")
+        for n, (a, b) in compare:
+            ratio = a["output_error_best_s"] / b["output_error_best_s"]
+            print(f"| {n:>6} | {a['output_error_s']:.2f} / {a['output_error_best_s']:.2f} | "
+                  f"{b['output_error_s']:.2f} / {b['output_error_best_s']:.2f} | **{ratio:.1f}** | "
+                  f"{a['output_error_nrmse_val']:.6g} / {b['output_error_nrmse_val']:.6g} |")
+            met = "met" if ratio >= 5 else "NOT met"
+            print(f"goal (issue 13) ratio >= 5 at {n} rows: {met} ({ratio:.1f})")
     if len(results) >= 2:
         print("growth exponent (d log y / d log rows; 1 = linear, 2 = quadratic):")
         pairs = list(itertools.pairwise(results))

@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from seafmu.components.kernels import maneuver as maneuver_kernel
 from seafmu.components.thrusters import thruster_matrix
 from seafmu.components.vessel_spec import VesselSpec
 from seafmu.identification import fitting
@@ -29,6 +30,9 @@ class _Simulator:
     and a constant NED current vc = (north, east): damping and the added-mass Coriolis terms then
     act on nu_r = nu - R^T [vc; 0] as in the plant (C_RB(nu) nu + C_A(nu_r) nu_r), with R from the
     simulated roll/pitch and the *measured* heading (``psi``, set by ``_sim_setup``).
+
+    The RK4 loop is compiled (``components/kernels/maneuver.py``: one loop over parameter sets,
+    segments and steps instead of L steps of NumPy calls on (K, S, ...) arrays).
     """
 
     def __init__(self, vessel: VesselSpec, t: np.ndarray, tau: np.ndarray, x_meas: np.ndarray,
@@ -53,49 +57,15 @@ class _Simulator:
         self.thrust: np.ndarray | None = None
         self.thrust_mid: np.ndarray | None = None
         self.B = thruster_matrix(vessel.thrusters, self.d)
+        self._basis: np.ndarray | None = None  # coriolis_tensor of each unit matrix (``_tensor``)
 
-    def _current(self, vc: np.ndarray, psi: np.ndarray, x: np.ndarray) -> np.ndarray:
-        """Body-frame current nu_c (K, S, d) from the NED current vc (K, 2) at heading psi (1, S)."""
-        vn, ve = vc[:, 0, None], vc[:, 1, None]
-        cs, sn = np.cos(psi), np.sin(psi)
-        out = np.zeros((*x.shape[:-1], self.d))
-        if self.d == 3:
-            out[..., 0] = cs * vn + sn * ve
-            out[..., 1] = -sn * vn + cs * ve
-            return out
-        phi, th = x[..., 0], x[..., 1]
-        cp, sp, ct, st = np.cos(phi), np.sin(phi), np.cos(th), np.sin(th)
-        out[..., 0] = cs * ct * vn + sn * ct * ve
-        out[..., 1] = (-sn * cp + cs * st * sp) * vn + (cs * cp + sp * st * sn) * ve
-        out[..., 2] = (sn * sp + cs * cp * st) * vn + (-cs * sp + st * sn * cp) * ve
-        return out
-
-    def _f(self, x: np.ndarray, tau: np.ndarray, W: np.ndarray, vc: np.ndarray | None = None,
-           psi: np.ndarray | None = None) -> np.ndarray:
-        """x_dot; nu_dot = [tau - g, nu (x) nu, nu, |nu| nu] @ W (one matmul per parameter set).
-
-        With a current: [tau - g, nu (x) nu, nu_r (x) nu_r, nu_r, |nu_r| nu_r] @ W (split Coriolis).
-        """
-        if self.d == 6:
-            phi, th, nu = x[..., 0], x[..., 1], x[..., 2:]
-            force = tau - self.g(phi, th)
-        else:
-            nu, force = x, np.broadcast_to(tau, x.shape)
-        nn = (nu[..., :, None] * nu[..., None, :]).reshape(*nu.shape[:-1], -1)
-        if vc is None or psi is None:
-            nu_dot = np.matmul(np.concatenate([force, nn, nu, np.abs(nu) * nu], axis=-1), W)
-        else:
-            nur = nu - self._current(vc, psi, x)
-            nnr = (nur[..., :, None] * nur[..., None, :]).reshape(*nur.shape[:-1], -1)
-            nu_dot = np.matmul(np.concatenate([np.broadcast_to(force, nu.shape), nn, nnr, nur,
-                                               np.abs(nur) * nur], axis=-1), W)
-        if self.d == 3:
-            return nu_dot
-        p, q, r = nu[..., 3], nu[..., 4], nu[..., 5]
-        sp, cp = np.sin(phi), np.cos(phi)
-        phi_dot = p + (sp * q + cp * r) * np.tan(th)
-        th_dot = cp * q - sp * r
-        return np.concatenate([phi_dot[..., None], th_dot[..., None], nu_dot], axis=-1)
+    def _tensor(self, M: np.ndarray) -> np.ndarray:
+        """coriolis_tensor of each of the K matrices M (K, d, d): (K, d, d*d), by linearity in M."""
+        if self._basis is None:
+            d = self.d
+            eye = np.eye(d * d).reshape(d * d, d, d)
+            self._basis = np.stack([coriolis_tensor(E) for E in eye])  # (d*d, d, d*d)
+        return np.einsum("ke,eab->kab", M.reshape(M.shape[0], -1), self._basis)
 
     def run(self, M: np.ndarray, DL: np.ndarray, DQ: np.ndarray, x0: np.ndarray | None = None,
             F0: np.ndarray | None = None, vc: np.ndarray | None = None,
@@ -107,43 +77,39 @@ class _Simulator:
         K = M.shape[0]
         cur = vc is not None and self.psi is not None and self.psi_mid is not None
         d = self.d
-        W = np.empty((K, d + (2 if cur else 1) * d**2 + 2 * d, d))
-        T_RB = coriolis_tensor(self.M_RB) if cur else None
-        for k in range(K):
-            Ms = _sym(M[k])
-            Minv = np.linalg.inv(Ms)
-            if T_RB is not None:  # C_RB(nu) nu + C_A(nu_r) nu_r: Coriolis is linear in M
-                cor = [-Minv @ T_RB, -Minv @ coriolis_tensor(Ms - self.M_RB)]
-            else:
-                cor = [-Minv @ coriolis_tensor(Ms)]
-            W[k] = np.hstack([Minv, *cor, -Minv @ DL[k], -Minv @ DQ[k]]).T
-        x = np.broadcast_to(self.x0 if x0 is None else x0, (K, *self.x0.shape)).copy()
+        # W_k = [M^-1, -M^-1 T(M) (Coriolis; C_RB and C_A apart with a current), -M^-1 D_L, -M^-1 D_Q]^T,
+        # all parameter sets at once: T(M) is linear in M, so it is M's entries times a basis
+        Ms = _sym(np.asarray(M, dtype=float))
+        Minv = np.linalg.inv(Ms)
+        if cur:  # C_RB(nu) nu + C_A(nu_r) nu_r: Coriolis is linear in M
+            T_RB = coriolis_tensor(self.M_RB)
+            cor = [-np.broadcast_to(Minv @ T_RB, (K, d, d * d)), -Minv @ self._tensor(Ms - self.M_RB)]
+        else:
+            cor = [-Minv @ self._tensor(Ms)]
+        W = np.concatenate([Minv, *cor, -Minv @ DL, -Minv @ DQ], axis=2).transpose(0, 2, 1)
+        x = np.ascontiguousarray(np.broadcast_to(self.x0 if x0 is None else x0, (K, *self.x0.shape)),
+                                 dtype=float)
         out = np.empty((K, *self.x0.shape[:1], self.length + 1, self.x0.shape[-1]))
-        out[:, :, 0] = x
-        h = self.h
-        f0 = 0.0 if F0 is None else np.asarray(F0, dtype=float)[:, None, :]
-        dtau = dtau_mid = None
+        # tau at the samples and the RK4 midpoints, per parameter set only where it differs
+        tau, tau_mid = self.tau[None], self.tau_mid[None]
+        if F0 is not None:
+            f0 = np.asarray(F0, dtype=float)[:, None, None, :]
+            tau, tau_mid = tau + f0, tau_mid + f0
         if thrust_gain is not None and self.thrust is not None and self.thrust_mid is not None:
             dB = (np.asarray(thrust_gain, dtype=float) - 1.0)[:, :, None] * self.B.T[None]  # (K, m, d)
-            dtau = np.einsum("slm,kmd->ksld", self.thrust, dB)
-            dtau_mid = np.einsum("slm,kmd->ksld", self.thrust_mid, dB)
-        vck = np.asarray(vc, dtype=float) if cur and vc is not None else None
-        no_psi = (None, None, None)
-        with np.errstate(all="ignore"):
-            for k in range(self.length):
-                t0, tm, t1 = (self.tau[None, :, k] + f0, self.tau_mid[None, :, k] + f0,
-                              self.tau[None, :, k + 1] + f0)
-                if dtau is not None and dtau_mid is not None:
-                    t0, tm, t1 = t0 + dtau[:, :, k], tm + dtau_mid[:, :, k], t1 + dtau[:, :, k + 1]
-                p0, pm, p1 = no_psi if vck is None else (
-                    self.psi[None, :, k], self.psi_mid[None, :, k], self.psi[None, :, k + 1])  # type: ignore[index]
-                k1 = self._f(x, t0, W, vck, p0)
-                k2 = self._f(x + 0.5 * h * k1, tm, W, vck, pm)
-                k3 = self._f(x + 0.5 * h * k2, tm, W, vck, pm)
-                k4 = self._f(x + h * k3, t1, W, vck, p1)
-                x = x + (h / 6.0) * (k1 + 2.0 * (k2 + k3) + k4)
-                x = np.where(np.abs(x) < 1e6, x, np.nan)  # a diverging model stays NaN
-                out[:, :, k + 1] = x
+            tau = tau + np.einsum("slm,kmd->ksld", self.thrust, dB)
+            tau_mid = tau_mid + np.einsum("slm,kmd->ksld", self.thrust_mid, dB)
+        if cur and vc is not None:
+            vck = np.ascontiguousarray(vc, dtype=float)
+            psi = np.ascontiguousarray(self.psi, dtype=float)
+            psi_mid = np.ascontiguousarray(self.psi_mid, dtype=float)
+        else:
+            vck, psi, psi_mid = np.zeros((K, 2)), np.zeros((1, 1)), np.zeros((1, 1))
+        g = self.g
+        g4 = np.array([g.wb, g.gx, g.gy, g.gz], dtype=float)
+        maneuver_kernel.simulate(x, np.ascontiguousarray(tau, dtype=float),
+                                 np.ascontiguousarray(tau_mid, dtype=float), np.ascontiguousarray(W), self.h,
+                                 d, g4, bool(cur), vck, psi, psi_mid, out)
         return out
 
 
