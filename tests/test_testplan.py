@@ -7,7 +7,9 @@ zero (coupled Y_r, N_v) predicting under 2 % of the trial's force at the trial's
 
 from __future__ import annotations
 
+import json
 import math
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -120,11 +122,36 @@ def test_roll_release_frees_the_coupled_dofs_and_the_coupled_fit_removes_their_d
     assert r.fits["record"].extras["free_dofs"] == ["p", "v", "r"]
 
 
+def test_fmu_path_equals_in_process(tmp_path: Path, built_fmus: dict) -> None:
+    """``--fmu`` runs the trial's scenario through the built FMUs (the controller FMU bundles
+    ``axis_trial`` with the rest of components/): same samples, same coefficient as in-process."""
+    with zipfile.ZipFile(built_fmus[("supply", "controller")]) as z:
+        assert any(n.endswith("/components/axis_trial.py") for n in z.namelist())
+    ref = run_testplan("supply", tmp_path / "inprocess", axes=["surge"], scale=0.1, report=False)
+    out = tmp_path / "fmu"
+    assert main(["supply", "--fmu", "--axes", "surge", "--scale", "0.1", "-o", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["mode"] == "fmu" and list(summary["identified"]) == ["X_u"]
+    assert summary["identified"]["X_u"]["value"] == pytest.approx(ref.identified["X_u"]["value"], rel=1e-9)
+    # the measured trials themselves (what the fit saw), sample by sample
+    assert len(ref.trial_files) == len(summary["trials"]) == 2
+    for pa, pb in zip(ref.trial_files, summary["trials"], strict=True):
+        a, b = load_trial(pa), load_trial(pb)
+        assert a.kind == b.kind
+        for ra, rb in zip(a.runs, b.runs, strict=True):
+            assert len(ra.y) > 20 and np.max(np.abs(ra.y - rb.y)) <= 1e-9 * np.max(np.abs(ra.y))
+            assert np.array_equal(ra.t, rb.t)
+
+
 @pytest.mark.parametrize("argv, needle", [
     (["titanic"], "vessel 'titanic': not a bundled vessel"),
     (["minerva2", "--hardware", "no_such_profile"], "--hardware no_such_profile"),
     (["supply", "--hardware", "minerva2_vessel"], "--hardware minerva2_vessel"),
     (["amv_osf"], "controller is 'heading_autopilot'"),
+    (["supply", "--axes", "roll"], "--axes: 'roll' is not a trial of vessel 'supply'"),
+    (["supply", "--axes", ","], "--axes: empty"),
+    (["supply", "--scale", "0"], "--scale: must be in (0, 10], got 0"),
+    (["minerva2", "--hardware", "emulator_pty", "--axes", "roll"], "--axes: 'roll' is a release"),
 ])
 def test_bad_input_is_one_line_exit_2(argv: list[str], needle: str, tmp_path: Path,
                                       capsys: pytest.CaptureFixture[str]) -> None:

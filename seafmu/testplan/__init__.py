@@ -36,6 +36,7 @@ class TestplanResult:
     wall: float = 0.0
     mode: str = "inprocess"
     hardware: str | None = None
+    scale: float = 1.0
 
 
 def identify_measurements(vessel: VesselSpec, measurements: dict[str, Measurement]) -> dict[str, AxisResult]:
@@ -101,16 +102,41 @@ def write_outputs(res: TestplanResult, out: Path) -> None:
                                  out / f"{res.vessel.name}_identified.yaml", prov)
 
 
+def select_axes(plans: list[TrialPlan], axes: list[str] | None, hardware: str | None,
+                vessel: str) -> list[TrialPlan]:
+    """The trials asked for (``--axes``; default all). Against hardware a roll/pitch release
+    cannot start from an angle (nothing tilts a real vessel to 10 deg and lets go), so the default
+    there is the method-one axes and asking for a release is an error."""
+    have = [p.axis for p in plans]
+    if axes is None:
+        return [p for p in plans if hardware is None or p.kind == "method_one"]
+    for a in axes:
+        if a not in have:
+            raise TestplanError(f"--axes: '{a}' is not a trial of vessel '{vessel}' (its trials: "
+                                f"{', '.join(have)})")
+        if hardware is not None and plans[have.index(a)].kind == "release":
+            raise TestplanError(f"--axes: '{a}' is a release from an angle, which the plan sets as the "
+                                "plant's initial state; with --hardware choose among "
+                                + ", ".join(p.axis for p in plans if p.kind == "method_one"))
+    return [p for p in plans if p.axis in axes]
+
+
 def run_testplan(vessel_name: str, out: Path, hardware: str | None = None, mode: str = "inprocess",
-                 seed: int = 1, scale: float = 1.0, report: bool = True) -> TestplanResult:
-    """The whole plan: design, run, measure, identify, write trials, vessel file and report."""
+                 seed: int = 1, scale: float = 1.0, report: bool = True,
+                 axes: list[str] | None = None) -> TestplanResult:
+    """The whole plan: design, run, measure, identify, write trials, vessel file and report.
+
+    ``scale`` multiplies the phase durations (a shorter plan: CI, a first look on hardware);
+    ``axes`` picks trials by axis (surge, sway, yaw, roll, pitch)."""
     t0 = time.perf_counter()
     vessel = load_vessel(vessel_name)
     ctrl = vessel.gnc.controller if vessel.gnc is not None else None
     if ctrl != "dp_pid":
         raise TestplanError(f"vessel '{vessel.name}': its controller is '{ctrl}'; the trials' axis_trial "
                             "controller has dp_pid's interface, so the plan runs on dp_pid vessels only")
-    plans = plan(vessel, scale)
+    if not (0.0 < scale <= 10.0) or not np.isfinite(scale):
+        raise TestplanError(f"--scale: must be in (0, 10], got {scale:g}")
+    plans = select_axes(plan(vessel, scale), axes, hardware, vessel.name)
     if not plans:
         raise TestplanError(f"vessel '{vessel.name}': no axis the test plan can excite")
     out.mkdir(parents=True, exist_ok=True)
@@ -118,7 +144,7 @@ def run_testplan(vessel_name: str, out: Path, hardware: str | None = None, mode:
     for tp in plans:
         measurements[tp.name] = run_trial(tp, vessel, out / "scenarios", hardware, mode, seed)
     results = identify_measurements(vessel, measurements)
-    res = TestplanResult(vessel, plans, measurements, results, mode=mode, hardware=hardware)
+    res = TestplanResult(vessel, plans, measurements, results, mode=mode, hardware=hardware, scale=scale)
     res.identified = identified_table(vessel, results)
     write_outputs(res, out)
     res.wall = time.perf_counter() - t0

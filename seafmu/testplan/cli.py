@@ -24,6 +24,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
     p.add_argument("-o", "--output", type=Path, help="output folder (default results/testplan_<vessel>)")
     p.add_argument("--fmu", action="store_true", help="run the plant and GNC as FMUs (default: in-process)")
     p.add_argument("--seed", type=int, default=1, help="sensor-noise seed of the plant (default 1)")
+    p.add_argument("--axes", metavar="AXIS[,AXIS]", help="run only these trials (surge, sway, yaw, roll, "
+                   "pitch; default all the vessel has; with --hardware: surge, sway, yaw)")
+    p.add_argument("--scale", type=float, default=1.0, help="multiply every phase duration by this "
+                   "(0 < SCALE <= 10, default 1): a shorter plan for CI or a first look on hardware, "
+                   "at the cost of accuracy (docs/testplan.md)")
     return p
 
 
@@ -50,9 +55,14 @@ def run(args: argparse.Namespace) -> int:
                   f"'{vessel}'", file=sys.stderr)
             return 2
     out = args.output or Path("results") / f"testplan_{vessel}"
+    axes = [a.strip() for a in args.axes.split(",") if a.strip()] if args.axes is not None else None
+    if axes is not None and not axes:
+        print("seafmu: error: --axes: empty; give one or more of surge, sway, yaw, roll, pitch",
+              file=sys.stderr)
+        return 2
     try:
         res = run_testplan(vessel, out, hardware=args.hardware, mode="fmu" if args.fmu else "inprocess",
-                           seed=args.seed)
+                           seed=args.seed, scale=args.scale, axes=axes)
     except (TestplanError, VesselFileError, SimulationError, ScenarioError, ValueError, OSError) as exc:
         print(f"seafmu: error: testplan {vessel}: {' '.join(str(exc).split())}", file=sys.stderr)
         return 2

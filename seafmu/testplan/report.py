@@ -79,7 +79,8 @@ def write_report(res: Any, out: Path) -> Path:
     where = f"the vessel through hardware profile `{res.hardware}`" if res.hardware else \
         f"the plant ({res.mode}, sensors with the vessel file's noise)"
     vf = res.vessel_file.name if res.vessel_file else "-"
-    L += [f"Run against {where}; {len(res.plans)} trials, wall time {res.wall:.1f} s. "
+    short = f" (phase durations x {res.scale:g}: a shortened plan)" if res.scale != 1.0 else ""
+    L += [f"Run against {where}; {len(res.plans)} trials{short}, wall time {res.wall:.1f} s. "
           f"Identified vessel file: `{vf}`; trials for `seafmu identify`: `trials/`.", ""]
     L += ["## Results table (the plan's, filled)", "",
           "| term | identified | 95 % CI | vessel file | difference | from trial |",
@@ -145,6 +146,7 @@ def write_report(res: Any, out: Path) -> Path:
     path = out / "report.md"
     path.write_text("\n".join(L) + "\n")
     summary = {"vessel": v.name, "wall_time_s": res.wall, "mode": res.mode, "hardware": res.hardware,
+               "scale": res.scale, "axes": [p.axis for p in res.plans],
                "identified": res.identified,
                "vessel_file": str(res.vessel_file) if res.vessel_file else None,
                "trials": [str(p) for p in res.trial_files]}
