@@ -133,6 +133,15 @@ def _tail(
 
 
 @kernel
+def _row(MS: np.ndarray, i: int, x: np.ndarray) -> float:
+    """Row i of [M_RB; M_A] times nu = x[6:12], summed left to right."""
+    s = 0.0
+    for j in range(6):
+        s += MS[i, j] * x[6 + j]
+    return s
+
+
+@kernel
 def rhs6(
     x: np.ndarray,
     ncmd: np.ndarray,
@@ -169,16 +178,13 @@ def rhs6(
     out[3] = p + t * sth
     out[4] = cphi * q - sphi * r
     out[5] = t
-    ab = np.zeros(12)
+    a1 = a2 = a3 = b1 = b2 = b3 = e1 = e2 = e3 = f1 = f2 = f3 = 0.0
     if coriolis:
-        for i in range(12):
-            s = 0.0
-            for j in range(6):
-                s += MS[i, j] * x[6 + j]
-            ab[i] = s
-    a1, a2, a3, b1, b2, b3 = ab[0], ab[1], ab[2], ab[3], ab[4], ab[5]
-    e1, e2, e3, f1, f2, f3 = ab[6], ab[7], ab[8], ab[9], ab[10], ab[11]
-    rel = np.zeros(6)
+        a1, a2, a3 = _row(MS, 0, x), _row(MS, 1, x), _row(MS, 2, x)
+        b1, b2, b3 = _row(MS, 3, x), _row(MS, 4, x), _row(MS, 5, x)
+        e1, e2, e3 = _row(MS, 6, x), _row(MS, 7, x), _row(MS, 8, x)
+        f1, f2, f3 = _row(MS, 9, x), _row(MS, 10, x), _row(MS, 11, x)
+    rel0 = rel1 = rel2 = rel3 = rel4 = rel5 = 0.0
     has_rel = False
     if vcn != 0.0 or vce != 0.0:
         uc, vc, wc = R11 * vcn + R21 * vce, R12 * vcn + R22 * vce, R13 * vcn + R23 * vce
@@ -194,8 +200,12 @@ def rhs6(
         ur, vr, wr = u - uc, v - vc, w - wc
         if relative:
             wx, wy, wz = q * wc - r * vc, r * uc - p * wc, p * vc - q * uc
-            for i in range(6):
-                rel[i] = ML[i, 0] * wx + ML[i, 1] * wy + ML[i, 2] * wz
+            rel0 = ML[0, 0] * wx + ML[0, 1] * wy + ML[0, 2] * wz
+            rel1 = ML[1, 0] * wx + ML[1, 1] * wy + ML[1, 2] * wz
+            rel2 = ML[2, 0] * wx + ML[2, 1] * wy + ML[2, 2] * wz
+            rel3 = ML[3, 0] * wx + ML[3, 1] * wy + ML[3, 2] * wz
+            rel4 = ML[4, 0] * wx + ML[4, 1] * wy + ML[4, 2] * wz
+            rel5 = ML[5, 0] * wx + ML[5, 1] * wy + ML[5, 2] * wz
             has_rel = True
     else:
         ur, vr, wr = u, v, w
@@ -209,13 +219,12 @@ def rhs6(
     z[m + 3] = v * a3 - w * a2 + vr * e3 - wr * e2 + q * t3 - r * t2 - gy * R33 + gz * R32
     z[m + 4] = w * a1 - u * a3 + wr * e1 - ur * e3 + r * t1 - p * t3 + gz * sth + gx * R33
     z[m + 5] = u * a2 - v * a1 + ur * e2 - vr * e1 + p * t2 - q * t1 - gx * R32 - gy * sth
-    for i in range(6):
-        f = z[m + i]
-        if has_rel:
-            f = f + rel[i]
-        if has_ext:
-            f = f - tau_ext[i]
-        z[m + i] = f
+    if has_rel:
+        z[m + 0], z[m + 1], z[m + 2] = z[m + 0] + rel0, z[m + 1] + rel1, z[m + 2] + rel2
+        z[m + 3], z[m + 4], z[m + 5] = z[m + 3] + rel3, z[m + 4] + rel4, z[m + 5] + rel5
+    if has_ext:
+        for i in range(6):
+            z[m + i] = z[m + i] - tau_ext[i]
     z[m + 6], z[m + 7], z[m + 8], z[m + 9], z[m + 10], z[m + 11] = ur, vr, wr, p, q, r
     z[m + 12], z[m + 13], z[m + 14] = abs(ur) * ur, abs(vr) * vr, abs(wr) * wr
     z[m + 15], z[m + 16], z[m + 17] = abs(p) * p, abs(q) * q, abs(r) * r
