@@ -299,18 +299,24 @@ def update_selection(
         for i in range(m):
             s += K[r, i] * y[i]
         x[r] += s
-    HP = np.empty((m, n))
-    for i in range(m):
-        for c in range(n):
-            HP[i, c] = P[idx[i], c]
-    A1 = P - K @ HP
-    A1Ht = np.empty((n, m))
+    # (I - KH) P = P - K (H P); Pn = A1 - (A1 H^T) K^T + (K R) K^T, fused (m is 1-6)
+    A1 = np.empty((n, n))
     for r in range(n):
-        for i in range(m):
-            A1Ht[r, i] = A1[r, idx[i]]
-    Kv = K * var
-    Pn = A1 - A1Ht @ K.T + Kv @ K.T
-    out = np.empty((n, n))
+        for c in range(n):
+            t = 0.0
+            for i in range(m):
+                t += K[r, i] * P[idx[i], c]
+            A1[r, c] = P[r, c] - t
+    Pn = np.empty((n, n))
+    for r in range(n):
+        for c in range(n):
+            t1 = 0.0
+            t2 = 0.0
+            for i in range(m):
+                t1 += A1[r, idx[i]] * K[c, i]
+                t2 += (K[r, i] * var[i]) * K[c, i]
+            Pn[r, c] = A1[r, c] - t1 + t2
+    out = A1
     for i in range(n):
         for j in range(n):
             out[i, j] = (Pn[i, j] + Pn[j, i]) * 0.5
