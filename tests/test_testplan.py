@@ -9,6 +9,9 @@ from __future__ import annotations
 
 import json
 import math
+import subprocess
+import sys
+import time
 import zipfile
 from pathlib import Path
 
@@ -22,7 +25,7 @@ from seafmu.components.vessel_spec import load_vessel
 from seafmu.identification.trial import load_trial
 from seafmu.testplan import identified_table, identify_measurements, run_testplan
 from seafmu.testplan.cli import main
-from seafmu.testplan.design import plan
+from seafmu.testplan.design import plan, steady_speed
 from seafmu.testplan.measure import run_trial
 
 
@@ -141,6 +144,51 @@ def test_fmu_path_equals_in_process(tmp_path: Path, built_fmus: dict) -> None:
         for ra, rb in zip(a.runs, b.runs, strict=True):
             assert len(ra.y) > 20 and np.max(np.abs(ra.y - rb.y)) <= 1e-9 * np.max(np.abs(ra.y))
             assert np.array_equal(ra.t, rb.t)
+
+
+REPO = Path(__file__).resolve().parents[1]
+HW_SCALE = 0.2  # the yaw trial at a fifth of its length: 26 s of real time
+HW_TOL_QUAD, HW_TOL_MOMENT = 0.10, 0.05  # N_|r|r; the damping moment at the trial's steady yaw rate
+
+
+def test_hardware_yaw_trial_over_ptys(tmp_path: Path) -> None:
+    """``--hardware`` end to end: the Minerva 2 emulator behind pseudo-terminals (NMEA 0183 + SLCAN,
+    its own pty paths so a parallel loopback test cannot collide), the axis_trial GNC through the
+    hardware link in real time, a shortened yaw trial; the identified yaw damping within the
+    looser hardware tolerance (the link delays sensor data by a step, commands act at the
+    emulator's 10 ms ticks, and the short phases leave N_r and N_|r|r traded against each other,
+    so their sum at the trial's rate is the tighter check)."""
+    doc = yaml.safe_load((REPO / "hardware" / "profiles" / "emulator_pty.yaml").read_text())
+    serial, slcan = tmp_path / "nmea", tmp_path / "slcan"
+    doc["name"], doc["serial"]["url"], doc["can"]["channel"] = "testplan_pty", str(serial), str(slcan)
+    profile = tmp_path / "testplan_pty.yaml"
+    profile.write_text(yaml.safe_dump(doc, sort_keys=False))
+    v = load_vessel("minerva2")
+    yaw = next(t for t in plan(v, HW_SCALE) if t.axis == "yaw")
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "seafmu.emulate", "minerva2", "--serial", f"pty:{serial}",
+         "--can", f"slcan:pty:{slcan}", "--profile", str(profile), "--duration", str(yaw.duration + 20.0)],
+        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    try:
+        assert proc.stdout is not None and proc.stdout.readline().startswith("READY")
+        t0 = time.perf_counter()
+        out = tmp_path / "out"
+        assert main(["minerva2", "--hardware", str(profile), "--axes", "yaw", "--scale", str(HW_SCALE),
+                     "-o", str(out)]) == 0
+        wall = time.perf_counter() - t0
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["hardware"] == str(profile) and summary["axes"] == ["yaw"]
+    assert wall >= yaw.duration  # paced to the wall clock: it really ran against the emulator
+    ident = summary["identified"]
+    dq, dl = ident["N_|r|r"]["value"], ident["N_r"]["value"]
+    assert abs(dq - v.D_Q[5, 5]) <= HW_TOL_QUAD * v.D_Q[5, 5], dq
+    r_ss = steady_speed(float(v.D_L[5, 5]), float(v.D_Q[5, 5]), yaw.force_hold)
+    moment_file = v.D_L[5, 5] * r_ss + v.D_Q[5, 5] * r_ss**2
+    assert abs(dl * r_ss + dq * r_ss**2 - moment_file) <= HW_TOL_MOMENT * moment_file
+    assert "hardware profile" in (out / "report.md").read_text()
 
 
 @pytest.mark.parametrize("argv, needle", [
