@@ -65,7 +65,8 @@ def main() -> None:
             results[n] = (wall, frame)
             print(f"sweep, {n} worker{'s' if n > 1 else ''}: {wall:7.1f} s for {args.cases} cases "
                   f"({wall / args.cases:.2f} s per case end to end; median case in its worker "
-                  f"{frame['wall_time_s'].median():.2f} s)", flush=True)
+                  f"{frame['wall_time_s'].median():.2f} s, CPU {frame['cpu_time_s'].median():.2f} s)",
+                  flush=True)
 
         seq_wall, bare = 0.0, []
         for seed in range(1, args.cases + 1):
@@ -91,6 +92,9 @@ def main() -> None:
               f"{seq_wall / w2:5.2f}x on 2")
         print(f"cases per hour per core ({args.scenario}, {doc['duration']:g} s simulated): "
               f"{3600 * args.cases / (w2 * cores):.0f} (2 workers), {3600 * args.cases / w1:.0f} (1 worker)")
+        cpu = pd.concat([f1["cpu_time_s"], results[2][1]["cpu_time_s"]]).median()
+        print(f"cases per hour per core from the CPU time a case takes in its worker ({cpu:.2f} s, "
+              f"independent of other load on the host): {3600 / cpu:.0f}")
         print(f"load average at the end: {os.getloadavg()[0]:.1f} (a shared machine lowers every figure)")
 
 

@@ -60,7 +60,7 @@ def run_case(task: dict[str, Any]) -> dict[str, Any]:
     from seafmu.results import evaluate_checks
     from seafmu.scenario import ScenarioError, load_scenario, parse_override
 
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     row: dict[str, Any] = {"case": task["case"], "key": task["key"], "seed": task["seed"],
                            **task["inputs"], "status": "error", "error": "",
                            "worker": f"{socket.gethostname()}:{os.getpid()}"}
@@ -97,4 +97,5 @@ def run_case(task: dict[str, Any]) -> dict[str, Any]:
     if not row["error"]:
         row["status"] = "pass" if checks_ok else "fail"
     row["wall_time_s"] = time.perf_counter() - t0
+    row["cpu_time_s"] = time.process_time() - c0  # this process's CPU: what the case costs on a shared host
     return row
