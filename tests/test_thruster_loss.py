@@ -14,13 +14,18 @@ diagnosed, written back, and the replay error drops.
 
 from __future__ import annotations
 
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from seafmu.components.thrusters import thruster_matrix
 from seafmu.components.vessel_spec import load_vessel
+from seafmu.hardware.profile import load_profile
 from seafmu.identification.diagnosis import diagnose, maneuver_data
 from seafmu.identification.effects.thruster_loss import thruster_of
 from seafmu.identification.fitting import nrmse
@@ -31,8 +36,9 @@ from seafmu.identification.maneuver import (
     write_maneuver_csv,
 )
 from seafmu.identification.replay import simulate_log
-from seafmu.identification.trial import csv_trial
+from seafmu.identification.trial import csv_trial, load_trial
 from seafmu.identification.writeback import efficiency_updates, write_scenario_parameters
+from seafmu.master import run
 from seafmu.scenario import load_scenario
 
 REPO = Path(__file__).resolve().parents[1]
@@ -115,3 +121,82 @@ def test_efficiency_written_back_and_replay_improves(tmp_path: Path) -> None:
     before, after = _replay_error(data, "minerva2", np.ones(7)), _replay_error(data, "minerva2", new)
     print(f"replay NRMSE {before:.4f} -> {after:.4f}")
     assert after < 0.7 * before
+
+
+# -- across processes: the emulator with a fouled thruster, the GNC FMUs, the recording diagnosed --
+
+HIL_DURATION = 40.0  # s of real time
+HIL_LOST, HIL_EFFICIENCY = 3, 0.6  # aft port horizontal thruster at 60 %
+# a short maneuver under DP: steps in north, east, heading and depth, so every DOF moves
+HIL_EVENTS = [(0.5, "north_ref", 4.0), (0.5, "east_ref", 3.0), (10.0, "yaw_ref", 0.8),
+              (15.0, "down_ref", 7.0), (22.0, "north_ref", 0.0), (28.0, "east_ref", 0.0),
+              (30.0, "yaw_ref", 0.0)]
+
+
+def _hil_scenarios(tmp_path: Path) -> tuple[Path, Path]:
+    """(the emulated vessel's scenario: minerva2_dp without current, the short maneuver; the same
+    with the plant replaced by the hardware link)."""
+    doc = yaml.safe_load((REPO / "scenarios" / "minerva2_dp.yaml").read_text())
+    doc["name"] = "minerva2_thruster_loss"
+    doc["duration"] = HIL_DURATION
+    doc["record_interval"] = 0.05
+    doc["fmus"]["plant"]["parameters"]["current_speed"] = "0 m/s"
+    doc["events"] = [{"time": t, "set": f"controller.{k}", "value": v} for t, k, v in HIL_EVENTS]
+    doc["checks"] = []
+    sim = tmp_path / "sim.yaml"
+    sim.write_text(yaml.safe_dump(doc, sort_keys=False))  # the FMU order is the stepping order
+    doc["name"] = "minerva2_thruster_loss_hil"
+    doc["fmus"]["plant"] = {"hardware": "emulator_pty"}
+    doc["checks"] = [{"signal": "plant.watchdog_alarm", "metric": "max", "max": 0}]
+    hil = tmp_path / "hil.yaml"
+    hil.write_text(yaml.safe_dump(doc, sort_keys=False))
+    return sim, hil
+
+
+def test_lost_thruster_located_in_a_hardware_recording(tmp_path: Path, built_fmus: dict) -> None:
+    profile = load_profile("emulator_pty")
+    sim_path, hil_path = _hil_scenarios(tmp_path)
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "seafmu.emulate", "minerva2", "--serial", f"pty:{profile.serial.url}",
+         "--can", f"slcan:pty:{profile.can.channel}", "--scenario", str(sim_path),
+         "--thruster-efficiency", f"{HIL_LOST}={HIL_EFFICIENCY}", "--duration", str(HIL_DURATION + 2.0)],
+        cwd=REPO, stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None
+        line = proc.stdout.readline()
+        assert line.startswith("READY"), f"emulator did not start: {line!r}"
+        hil = run(load_scenario(hil_path), progress=False, record_dir=tmp_path / "rec")
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
+    t_hil = time.perf_counter() - t0
+    assert np.max(hil.signals["plant.watchdog_alarm"]) == 0
+    # the unchanged GNC held DP with the weak thruster: the vessel reached the new point
+    north = hil.signals["plant.meas_north"]
+    assert abs(north[-1] - hil.signals["controller.north_d"][-1]) < 0.5
+
+    # the recording, diagnosed with the whole catalogue
+    trial = load_trial(tmp_path / "rec" / "trial.yaml")
+    t1 = time.perf_counter()
+    d = diagnose(trial)
+    t_diag = time.perf_counter() - t1
+    assert d.effect == "thruster_loss", d.evidence
+    thruster, eta, ci = _located(d)
+    assert thruster == HIL_LOST, d.evidence
+    assert eta == pytest.approx(HIL_EFFICIENCY, abs=0.05)
+
+    # written back into the scenario: the rerun's plant carries the loss, and replaying the
+    # recording through the plant model with it drops the error
+    updates, cis = efficiency_updates(d.cause.fit)  # type: ignore[union-attr]
+    out = write_scenario_parameters(sim_path, updates, tmp_path / "rerun.yaml",
+                                    {**cis, "trial": trial.name, "method": "diagnosis"})
+    written = load_scenario(out).instance("plant").parameters[f"thruster_efficiency_{HIL_LOST}"]
+    assert written == pytest.approx(eta)
+    data = maneuver_data(trial, load_vessel("minerva2"))
+    new = np.ones(7)
+    new[HIL_LOST - 1] = written
+    before, after = _replay_error(data, "minerva2", np.ones(7)), _replay_error(data, "minerva2", new)
+    print(f"HIL: thruster {thruster}, eta {eta:.4f} CI [{ci[0]:.4f}, {ci[1]:.4f}]; replay NRMSE "
+          f"{before:.4f} -> {after:.4f}; HIL {t_hil:.1f} s, diagnosis {t_diag:.1f} s; {d.evidence}")
+    assert after < 0.8 * before

@@ -8,10 +8,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from seafmu.components.vessel_spec import VesselSpec
+from seafmu.components.vessel_spec import NU_NAMES, VesselSpec
 from seafmu.identification import arrowlm, fitting
 from seafmu.identification.effects import CatalogueEffect
-from seafmu.identification.maneuver.preprocessing import _Prepared
+from seafmu.identification.maneuver.preprocessing import _Prepared, noise_ratios
 from seafmu.identification.maneuver.simulation import _sim_residual, _SimSetup
 from seafmu.identification.maneuver.statistics import _autocorr_inflation
 from seafmu.identification.maneuver.terms import (
@@ -239,6 +239,17 @@ def _output_error(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | None, 
     return best
 
 
+# A DOF is fitted only where its motion is clearly above the sensor noise: the noise (second
+# differences, robust) at most this fraction of the measured velocity's spread.
+NOISE_MAX = 0.5
+
+
+def excited_dofs(nu: np.ndarray) -> list[int]:
+    """The DOFs whose measured velocity moves clearly above its sensor noise (``NOISE_MAX``)."""
+    ratios = noise_ratios(nu)
+    return [j for j in range(nu.shape[1]) if ratios[j] <= NOISE_MAX]
+
+
 # How many of an effect's variants (e.g. which thruster is lost) are fitted after the screening.
 LOCATE_KEEP = 3
 
@@ -323,11 +334,24 @@ def _output_error_one(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | No
         M0, DL0, DQ0 = _sym(ls.M), ls.D_L.copy(), ls.D_Q.copy()
     else:
         M0, DL0, DQ0 = plant["M"].copy(), plant["D_L"].copy(), plant["D_Q"].copy()
+    # DOFs whose motion is below the sensor noise keep their damping (the start's, else the vessel
+    # file's): a log that barely moves them (roll and pitch under DP) cannot tell their damping,
+    # and a free value there wanders to an unstable model
+    fl = excited_dofs(prep.nu_raw)
+    held = [i for i in range(d) if i not in fl]
+    for i in held:
+        DL0[i, i] = (start or {}).get(f"D_L[{i},{i}]", plant["D_L"][i, i])
+        DQ0[i, i] = (start or {}).get(f"D_Q[{i},{i}]", plant["D_Q"][i, i])
+    if held:
+        warnings.append(f"damping of {', '.join(NU_NAMES[d][i] for i in held)} held at "
+                        f"{'the start' if start else 'the vessel file'}: motion below {1 / NOISE_MAX:g}x the "
+                        "sensor noise")
+    nf = len(fl)
     # start: LS diagonal (falls back to the vessel file where LS is unusable)
     ls_ok_M = np.all(np.linalg.eigvalsh(_sym(ls.M)) > 0)
-    start_L = np.where(np.isfinite(np.diag(ls.D_L)), np.diag(ls.D_L), np.diag(plant["D_L"]))
-    start_Q = np.where(np.diag(ls.D_Q) > 0, np.diag(ls.D_Q), np.diag(plant["D_Q"]))
-    names = [f"D_L[{i},{i}]" for i in range(d)] + [f"D_Q[{i},{i}]" for i in range(d)]
+    start_L = np.where(np.isfinite(np.diag(ls.D_L)), np.diag(ls.D_L), np.diag(plant["D_L"]))[fl]
+    start_Q = np.where(np.diag(ls.D_Q) > 0, np.diag(ls.D_Q), np.diag(plant["D_Q"]))[fl]
+    names = [f"D_L[{i},{i}]" for i in fl] + [f"D_Q[{i},{i}]" for i in fl]
     p0 = [*start_L, *start_Q]
     if added_mass:
         names += [f"M[{i},{i}]" for i in range(d)]
@@ -343,9 +367,9 @@ def _output_error_one(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | No
     p0 = np.array([*p0, *e_start], dtype=float)
     nu_abs = np.sqrt(np.mean(prep.nu_raw**2, axis=0))
     # parameter scales: a linear coefficient is worth its quadratic one times the rms speed
-    sQ = np.maximum(np.abs(p0[d : 2 * d]), 1e-3 * np.diag(plant["M"]))
-    sL = np.maximum(np.abs(p0[:d]), sQ * nu_abs + 1e-6)
-    scales = [*sL, *sQ] + ([*np.abs(p0[2 * d : 3 * d])] if added_mass else [])
+    sQ = np.maximum(np.abs(p0[nf : 2 * nf]), 1e-3 * np.diag(plant["M"])[fl])
+    sL = np.maximum(np.abs(p0[:nf]), sQ * nu_abs[fl] + 1e-6)
+    scales = [*sL, *sQ] + ([*np.abs(p0[2 * nf : 2 * nf + d])] if added_mass else [])
     if eff is not None:
         scales += eff.maneuver_scales(prep.tau)
     scales = np.maximum(np.array(scales), 1e-9)
@@ -364,10 +388,10 @@ def _output_error_one(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | No
         DL = np.broadcast_to(DL0, (K, d, d)).copy()
         DQ = np.broadcast_to(DQ0, (K, d, d)).copy()
         ii = np.arange(d)
-        DL[:, ii, ii] = P[:, :d]
-        DQ[:, ii, ii] = P[:, d : 2 * d]
+        DL[:, fl, fl] = P[:, :nf]
+        DQ[:, fl, fl] = P[:, nf : 2 * nf]
         if added_mass:
-            M[:, ii, ii] = P[:, 2 * d : 3 * d]
+            M[:, ii, ii] = P[:, 2 * nf : 2 * nf + d]
         return M, DL, DQ
 
     def terms(P: np.ndarray) -> dict[str, np.ndarray]:
@@ -405,7 +429,7 @@ def _output_error_one(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | No
 
     # start from the LS diagonal, unless the vessel file's values simulate the trial better
     # (a poorly exciting log gives an LS model that may not even be stable)
-    p_file = np.concatenate([np.diag(plant["D_L"]), np.diag(plant["D_Q"])]
+    p_file = np.concatenate([np.diag(plant["D_L"])[fl], np.diag(plant["D_Q"])[fl]]
                             + ([np.diag(plant["M"])] if added_mass else []) + [np.array(absent, dtype=float)])
     x0z = (x0_meas / x_scale).ravel()
     z_ls, z_file = np.concatenate([p0 / scales, x0z]), np.concatenate([p_file / scales, x0z])

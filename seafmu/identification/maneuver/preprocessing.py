@@ -54,9 +54,14 @@ def _uniform(data: ManeuverData, warnings: list[str]) -> ManeuverData:
 def noise_ratio(nu: np.ndarray) -> float:
     """Largest per-DOF ratio of white-noise std to signal std, from second differences
     (robust MAD; a smooth signal's second difference is O(dt^2) and does not count)."""
+    return float(np.max(noise_ratios(nu)))
+
+
+def noise_ratios(nu: np.ndarray) -> np.ndarray:
+    """Per DOF: white-noise std over signal std (``noise_ratio``)."""
     d2 = np.diff(nu, n=2, axis=0)
     sigma = 1.4826 * np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0) / math.sqrt(6.0)
-    return float(np.max(sigma / np.maximum(nu.std(axis=0), 1e-300)))
+    return sigma / np.maximum(nu.std(axis=0), 1e-300)
 
 
 def _prepare(data: ManeuverData, derivative: str, smoothing: float | None, polyorder: int) -> _Prepared:
