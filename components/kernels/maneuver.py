@@ -37,6 +37,8 @@ def _f3(
     c1: float,
 ) -> tuple[float, float, float]:
     """nu_dot of the 3-DOF model; (c0, c1) the body current (its yaw rate is 0)."""
+    # Long because the regressor z is written out term by term in scalars (kept in registers by
+    # the compiler, the speed of a fit); a helper would return a tuple or an array per call.
     t0, t1, t2 = tau[kt, s, step, 0], tau[kt, s, step, 1], tau[kt, s, step, 2]
     a0 = 0.0
     a1 = 0.0

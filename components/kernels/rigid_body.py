@@ -160,6 +160,8 @@ def rhs6(
     out: np.ndarray,
 ) -> None:
     """x_dot of the 6-DOF model into ``out`` (z: work array of m + 18)."""
+    # Long because kinematics, Coriolis, current and restoring are unrolled in scalars into
+    # preallocated arrays (no allocation per call on the plant's hot path), as VesselModel._rhs6.
     phi, theta = x[3], x[4]
     psi = x[5]
     u, v, w, p, q, r = x[6], x[7], x[8], x[9], x[10], x[11]
