@@ -452,20 +452,21 @@ def test_pinv_clip_and_outputs(vessel) -> None:
         tau_fixed = B @ T_fixed
         for _ in range(20):
             tau = rng.normal(size=d) * np.abs(B).sum(axis=1) * T_max.mean() * 0.4
-            T, Tc, sat = np.empty(m), np.empty(m), np.empty(m)
+            T, Tc, sat = np.empty(m), np.empty(m), np.empty(m, dtype=bool)
             alloc.pinv_clip(P, tau, tau_fixed, T_fixed, any_off, lo, hi, T, Tc, sat)
             Tr = P @ (tau - tau_fixed) + T_fixed
             close(T, Tr)
             np.testing.assert_array_equal(Tc, np.clip(T, lo, hi))
-            np.testing.assert_array_equal(sat, (Tc != T).astype(float))
+            np.testing.assert_array_equal(sat, Tc != T)
             y = np.zeros(3 * m + d + 3)
+            k = 2 * m + d
+            pos = np.array([0, m, 2 * m, k, k + 1, k + 2 + m])  # the allocator's output layout
             alloc.outputs(
-                Tc, tau, np.ascontiguousarray(B), p.th, int(p.flags[1]), th.n_max, off, any_off, sat, y
+                Tc, tau, np.ascontiguousarray(B), p.th, int(p.flags[1]), th.n_max, off, any_off, sat, y, pos
             )
             n_ref = np.where(off, 0.0, thrust_to_speed(th, Tc))
             close(y[:m], n_ref)
             np.testing.assert_array_equal(y[m : 2 * m], Tc)
-            k = 2 * m + d
             close(y[2 * m : k], B @ Tc)
             # ||B T - tau|| is a difference of large numbers when tau is within reach
             assert abs(y[k] - np.linalg.norm(B @ Tc - tau)) <= RTOL * float(np.abs(tau).max())
@@ -488,11 +489,11 @@ def test_qp_bounds_and_result() -> None:
     x = rng.normal(size=n) * 2
     off = np.zeros(m, dtype=bool)
     off[2] = True
-    T, sat = np.empty(m), np.empty(m)
+    T, sat = np.empty(m), np.empty(m, dtype=bool)
     alloc.qp_result(x, lo, hi, off, 1e-6, T, sat)
     Tr = np.minimum(np.maximum(x[:m], lo), hi)
     np.testing.assert_array_equal(T, Tr)
-    np.testing.assert_array_equal(sat, (((Tr <= lo + 1e-6) | (Tr >= hi - 1e-6)) & ~off).astype(float))
+    np.testing.assert_array_equal(sat, ((Tr <= lo + 1e-6) | (Tr >= hi - 1e-6)) & ~off)
 
 
 # -- controller --------------------------------------------------------------------------------

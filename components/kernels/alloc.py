@@ -30,7 +30,7 @@ def pinv_clip(
     Tc: np.ndarray,
     sat: np.ndarray,
 ) -> None:
-    """Unclipped T, clipped Tc and sat = (Tc != T) into the given arrays."""
+    """Unclipped T, clipped Tc and sat = (Tc != T) (a bool array) into the given arrays."""
     m, d = P.shape
     tt = np.empty(d)
     for j in range(d):
@@ -44,7 +44,7 @@ def pinv_clip(
         T[i] = s
         c = min(max(s, lo[i]), hi[i])
         Tc[i] = c
-        sat[i] = 1.0 if c != s else 0.0
+        sat[i] = c != s
 
 
 @kernel
@@ -75,33 +75,32 @@ def outputs(
     any_off: bool,
     sat: np.ndarray,
     y: np.ndarray,
+    pos: np.ndarray,
 ) -> None:
-    """y[:m] = n, y[m:2m] = T, then tau_alloc = B T, ||tau_alloc - tau||, sat, and y[k+2+m] = T^T T.
-
-    (The negative front thrust y[k+1+m] and the QP iterations y[k+3+m] are the caller's.)
-    """
+    """The allocator's outputs into y at the positions ``pos`` = (first n_cmd, first thrust_cmd,
+    first tau_alloc, alloc_error, first sat, thrust_energy): n (0 for a thruster that is off), T,
+    tau_alloc = B T, ||tau_alloc - tau||, sat, T^T T (``AllocatorBlock.step``)."""
     d, m = B.shape
     n = np.empty(m)
     speed_from_thrust(T, th, quadratic, n_max, n)
+    n0, t0, a0, e0, s0, w0 = pos[0], pos[1], pos[2], pos[3], pos[4], pos[5]
     for i in range(m):
-        y[i] = 0.0 if (any_off and off[i]) else n[i]
-        y[m + i] = T[i]
-    k = 2 * m + d
+        y[n0 + i] = 0.0 if (any_off and off[i]) else n[i]
+        y[t0 + i] = T[i]
+        y[s0 + i] = 1.0 if sat[i] else 0.0
     ss = 0.0
     for j in range(d):
         s = 0.0
         for i in range(m):
             s += B[j, i] * T[i]
-        y[2 * m + j] = s
+        y[a0 + j] = s
         e = s - tau[j]
         ss += e * e
-    y[k] = math.sqrt(ss)
-    for i in range(m):
-        y[k + 1 + i] = sat[i]
+    y[e0] = math.sqrt(ss)
     e2 = 0.0
     for i in range(m):
         e2 += T[i] * T[i]
-    y[k + 2 + m] = e2
+    y[w0] = e2
 
 
 @kernel
@@ -122,8 +121,9 @@ def qp_bounds(
 def qp_result(
     x: np.ndarray, lo: np.ndarray, hi: np.ndarray, off: np.ndarray, tol: float, T: np.ndarray, sat: np.ndarray
 ) -> None:
-    """T = x[:m] clipped into [lo, hi]; sat where T is at a bound (within tol) on a working thruster."""
+    """T = x[:m] clipped into [lo, hi]; sat (bool) where T is at a bound (within tol) on a working
+    thruster."""
     for i in range(T.shape[0]):
         t = min(max(x[i], lo[i]), hi[i])
         T[i] = t
-        sat[i] = 1.0 if ((t <= lo[i] + tol) or (t >= hi[i] - tol)) and not off[i] else 0.0
+        sat[i] = ((t <= lo[i] + tol) or (t >= hi[i] - tol)) and not off[i]

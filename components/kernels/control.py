@@ -49,6 +49,18 @@ def jacobian(eta: np.ndarray, Jm: np.ndarray) -> None:
 
 
 @kernel
+def eta_rate(eta: np.ndarray, nu: np.ndarray, Jm: np.ndarray, eta_dot: np.ndarray) -> None:
+    """J(eta) into Jm and eta_dot = J(eta) nu (summed as in ``pid_force``)."""
+    d = eta.shape[0]
+    jacobian(eta, Jm)
+    for i in range(d):
+        s = 0.0
+        for j in range(d):
+            s += Jm[i, j] * nu[j]
+        eta_dot[i] = s
+
+
+@kernel
 def reference_step(
     x: np.ndarray,
     v: np.ndarray,
@@ -98,12 +110,7 @@ def pid_force(
 ) -> None:
     """J(eta), eta_dot = J nu, e = eta - eta_d (angles wrapped) and tau = -J^T (Kp e + Kd edot + Ki z)."""
     d = eta.shape[0]
-    jacobian(eta, Jm)
-    for i in range(d):
-        s = 0.0
-        for j in range(d):
-            s += Jm[i, j] * nu[j]
-        eta_dot[i] = s
+    eta_rate(eta, nu, Jm, eta_dot)
     pid = np.empty(d)
     for i in range(d):
         ei = eta[i] - eta_d[i]
