@@ -276,6 +276,7 @@ def _screen_variants(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup, ls: 
     terms = [c.maneuver_terms(np.array([[c.absent], [c.absent + h]])) for c in cands]
     batch = {k: np.concatenate([np.repeat(terms[0][k][:1], 1 + 2 * d, axis=0)] + [t[k][1:] for t in terms])
              for k in terms[0]}
+    best: tuple | None = None  # the start model or the vessel file's, whichever simulates the log better
     for M0, DL0, DQ0 in ((Ms, DLs, DQs), (plant["M"], plant["D_L"], plant["D_Q"])):
         sQ = np.maximum(np.abs(np.diag(DQ0)), 1e-3 * np.diag(plant["M"]))
         sL = np.maximum(np.abs(np.diag(DL0)), sQ * nu_rms + 1e-6)
@@ -286,9 +287,12 @@ def _screen_variants(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup, ls: 
             DQ[1 + d + i, i, i] += hd[d + i]
         r = _sim_residual(setup, M, DL, DQ, **batch)[:, setup.mask]  # (K, compared samples, d)
         if np.all(np.isfinite(r[: 1 + 2 * d])):
-            break
-    else:
+            cost = float(np.sum(r[0] ** 2))
+            if best is None or cost < best[0]:
+                best = (cost, M0, DL0, DQ0, hd, r)
+    if best is None:
         return None
+    _, M0, DL0, DQ0, hd, r = best
     r = np.where(np.isfinite(r), r, 1e3)  # a variant's step that diverges: a large residual
     r = r.reshape(K, -1)
     r0 = r[0]
@@ -316,6 +320,8 @@ def _screen_variants(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup, ls: 
         starts.append({**{f"D_L[{i},{i}]": float(DL[j, i, i]) for i in range(d)},
                        **{f"D_Q[{i},{i}]": float(DQ[j, i, i]) for i in range(d)},
                        c.maneuver_params(d)[-1]: float(c.absent + st[j, -1])} if ok else {})
+    if not any(scores):  # no variant's step helps: the screen cannot rank them
+        return None
     return scores, starts
 
 
@@ -323,7 +329,28 @@ def _output_error_one(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | No
                       plant: dict[str, np.ndarray], added_mass: bool, base: str, max_nfev: int,
                       warnings: list[str], eff: CatalogueEffect | None,
                       start: dict[str, float] | None) -> tuple:
-    """One output-error fit, with the effect object ``eff``'s parameters (or none)."""
+    """One output-error fit, with the effect object ``eff``'s parameters (or none). Quadratic
+    damping is dissipative: a diagonal entry fitted negative is held at 0 and the fit repeated
+    (an active set; a short, slow log cannot tell v from v|v| and trades one against the other)."""
+    out = _output_error_held(vessel, prep, setup, ls, plant, added_mass, base, max_nfev, warnings, eff,
+                             start, {})
+    names, p = out[3], out[4]
+    neg = {nm: 0.0 for nm, v in zip(names, p, strict=True) if nm.startswith("D_Q[") and v < 0}
+    if not neg:
+        return out
+    w: list[str] = []
+    again = _output_error_held(vessel, prep, setup, ls, plant, added_mass, base, max_nfev, w, eff,
+                               {**(start or {}), **dict(zip(names, p.tolist(), strict=True))}, neg)
+    warnings += [*w, f"quadratic damping {', '.join(neg)} fitted negative: held at 0 (dissipative) and "
+                     "refitted"]
+    return again
+
+
+def _output_error_held(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | None, ls: _LSResult,
+                       plant: dict[str, np.ndarray], added_mass: bool, base: str, max_nfev: int,
+                       warnings: list[str], eff: CatalogueEffect | None,
+                       start: dict[str, float] | None, hold: dict[str, float]) -> tuple:
+    """One output-error fit with the damping entries in ``hold`` (name -> value) kept fixed."""
     # Over 80 lines: the parameter layout (model diagonals, added mass, effect parameters, one initial
     # state per segment) is shared by the closures mats/terms/residuals/jac; split apart, each would
     # need the same ten arrays passed in, and the layout would be written in two places.
@@ -346,12 +373,17 @@ def _output_error_one(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | No
         warnings.append(f"damping of {', '.join(NU_NAMES[d][i] for i in held)} held at "
                         f"{'the start' if start else 'the vessel file'}: motion below {1 / NOISE_MAX:g}x the "
                         "sensor noise")
-    nf = len(fl)
+    for key, val in hold.items():
+        i = int(key[key.index("[") + 1 : key.index(",")])
+        (DL0 if key.startswith("D_L") else DQ0)[i, i] = val
+    fL = [i for i in fl if f"D_L[{i},{i}]" not in hold]
+    fQ = [i for i in fl if f"D_Q[{i},{i}]" not in hold]
+    nL, nQ = len(fL), len(fQ)
     # start: LS diagonal (falls back to the vessel file where LS is unusable)
     ls_ok_M = np.all(np.linalg.eigvalsh(_sym(ls.M)) > 0)
-    start_L = np.where(np.isfinite(np.diag(ls.D_L)), np.diag(ls.D_L), np.diag(plant["D_L"]))[fl]
-    start_Q = np.where(np.diag(ls.D_Q) > 0, np.diag(ls.D_Q), np.diag(plant["D_Q"]))[fl]
-    names = [f"D_L[{i},{i}]" for i in fl] + [f"D_Q[{i},{i}]" for i in fl]
+    start_L = np.where(np.isfinite(np.diag(ls.D_L)), np.diag(ls.D_L), np.diag(plant["D_L"]))[fL]
+    start_Q = np.where(np.diag(ls.D_Q) > 0, np.diag(ls.D_Q), np.diag(plant["D_Q"]))[fQ]
+    names = [f"D_L[{i},{i}]" for i in fL] + [f"D_Q[{i},{i}]" for i in fQ]
     p0 = [*start_L, *start_Q]
     if added_mass:
         names += [f"M[{i},{i}]" for i in range(d)]
@@ -367,9 +399,12 @@ def _output_error_one(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | No
     p0 = np.array([*p0, *e_start], dtype=float)
     nu_abs = np.sqrt(np.mean(prep.nu_raw**2, axis=0))
     # parameter scales: a linear coefficient is worth its quadratic one times the rms speed
-    sQ = np.maximum(np.abs(p0[nf : 2 * nf]), 1e-3 * np.diag(plant["M"])[fl])
-    sL = np.maximum(np.abs(p0[:nf]), sQ * nu_abs[fl] + 1e-6)
-    scales = [*sL, *sQ] + ([*np.abs(p0[2 * nf : 2 * nf + d])] if added_mass else [])
+    q_all = np.diag(DQ0).copy()  # quadratic damping per DOF: the fitted ones at their start
+    q_all[fQ] = p0[nL : nL + nQ]
+    sQ_all = np.maximum(np.abs(q_all), 1e-3 * np.diag(plant["M"]))
+    sQ = sQ_all[fQ]
+    sL = np.maximum(np.abs(p0[:nL]), sQ_all[fL] * nu_abs[fL] + 1e-6)
+    scales = [*sL, *sQ] + ([*np.abs(p0[nL + nQ : nL + nQ + d])] if added_mass else [])
     if eff is not None:
         scales += eff.maneuver_scales(prep.tau)
     scales = np.maximum(np.array(scales), 1e-9)
@@ -388,10 +423,10 @@ def _output_error_one(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | No
         DL = np.broadcast_to(DL0, (K, d, d)).copy()
         DQ = np.broadcast_to(DQ0, (K, d, d)).copy()
         ii = np.arange(d)
-        DL[:, fl, fl] = P[:, :nf]
-        DQ[:, fl, fl] = P[:, nf : 2 * nf]
+        DL[:, fL, fL] = P[:, :nL]
+        DQ[:, fQ, fQ] = P[:, nL : nL + nQ]
         if added_mass:
-            M[:, ii, ii] = P[:, 2 * nf : 2 * nf + d]
+            M[:, ii, ii] = P[:, nL + nQ : nL + nQ + d]
         return M, DL, DQ
 
     def terms(P: np.ndarray) -> dict[str, np.ndarray]:
@@ -429,7 +464,7 @@ def _output_error_one(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | No
 
     # start from the LS diagonal, unless the vessel file's values simulate the trial better
     # (a poorly exciting log gives an LS model that may not even be stable)
-    p_file = np.concatenate([np.diag(plant["D_L"])[fl], np.diag(plant["D_Q"])[fl]]
+    p_file = np.concatenate([np.diag(plant["D_L"])[fL], np.diag(plant["D_Q"])[fQ]]
                             + ([np.diag(plant["M"])] if added_mass else []) + [np.array(absent, dtype=float)])
     x0z = (x0_meas / x_scale).ravel()
     z_ls, z_file = np.concatenate([p0 / scales, x0z]), np.concatenate([p_file / scales, x0z])
