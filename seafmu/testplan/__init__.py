@@ -42,7 +42,7 @@ class TestplanResult:
 def identify_measurements(vessel: VesselSpec, measurements: dict[str, Measurement]) -> dict[str, AxisResult]:
     """Fit every trial, then the coupled terms."""
     results = {name: identify_axis(m, vessel) for name, m in measurements.items()}
-    coupled_terms(results, measurements, 0.5 * (vessel.M + vessel.M.T), vessel.D_L, vessel.tau_names)
+    coupled_terms(results, measurements, vessel)
     return results
 
 
@@ -70,7 +70,9 @@ def identified_table(vessel: VesselSpec, results: dict[str, AxisResult]) -> dict
             if name is None:
                 continue
             k = vessel.tau_names.index(tau)
-            out[name] = {"key": f"linear_damping[{k}][{j}]", "value": float(dkj), "ci95": None,
+            ci = r.coupled_ci.get(tau)
+            out[name] = {"key": f"linear_damping[{k}][{j}]", "value": float(dkj),
+                         "ci95": [float(x) for x in ci] if ci is not None else None,
                          "file": float(vessel.D_L[k, j]), "trial": r.plan.name, "axis": r.plan.axis,
                          "kind": "coupled"}
     return out

@@ -32,7 +32,7 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.signal import butter, sosfiltfilt
 
-from seafmu.components.dynamics import restoring_coefficients
+from seafmu.components.dynamics import coriolis_force, restoring_coefficients, restoring_force
 from seafmu.components.vessel_spec import VesselSpec
 from seafmu.identification.fitting import (
     FitResult,
@@ -45,8 +45,10 @@ from seafmu.identification.fitting import (
 from seafmu.identification.timeseries import TSModel, baseline_model, fit_timeseries
 from seafmu.identification.trial import Run, Trial, make_trial
 from seafmu.testplan.design import AXES, TrialPlan
-from seafmu.testplan.measure import Measurement
+from seafmu.testplan.measure import Measurement, noise_draws
 
+COUPLED_DRAWS = 300  # sensor-noise realisations behind a coupled term's interval
+COUPLED_SEED = 0
 INPUT_CUTOFF = 3.0  # low-pass of a release's measured inputs, in natural frequencies
 PROVENANCE = "seafmu testplan: simulated or measured trial, sensors as the vessel file states them"
 
@@ -62,6 +64,7 @@ class AxisResult:
     levels: dict[str, dict[str, float]] = field(default_factory=dict)  # window -> {v, tau_<k>}
     # held tau name -> (D_kj, impulse int tau_k dt, displacement int nu_j dt)
     coupled: dict[str, tuple[float, float, float]] = field(default_factory=dict)
+    coupled_ci: dict[str, tuple[float, float]] = field(default_factory=dict)  # held tau name -> 95 % CI
 
     @property
     def damping(self) -> dict[str, float]:
@@ -336,18 +339,23 @@ def steady_levels(m: Measurement) -> dict[str, dict[str, float]]:
 
 
 def coupled_terms(results: dict[str, AxisResult], measurements: dict[str, Measurement],
-                  M: np.ndarray, D_file: np.ndarray, tau_names: list[str]) -> None:
+                  vessel: VesselSpec) -> None:
     """D_kj (k held, j the trial axis) from the impulse on the held axis over a rest-to-rest window.
 
-    Integrating row k of M nu' + D nu = tau from rest (before the force) to rest (the end of the
-    release): int tau_k dt = sum_i M_ki dnu_i + sum_i D_ki int nu_i dt. The trial axis travels far
-    (int nu_j dt is its displacement, from the position fixes or the heading), the held axes
-    hardly move, so D_kj = (int tau_k dt - M_k. dnu - D_kk int nu_k dt - others) / int nu_j dt:
-    no derivative of noisy data, the measured forces averaged over the whole record. D_kk is the
-    identified value, other cross terms the file's.
+    Integrating row k of M nu' + C(nu) nu + D_L nu + D_Q |nu| nu + g(eta) = tau from rest (before
+    the force: nu = 0 by design) to rest (the end of the release, nu measured):
+    int tau_k dt = M_k. dnu + int (C_k + sum_i D_L,ki nu_i + D_Q,ki |nu_i| nu_i + g_k) dt. The trial
+    axis travels far (int nu_j dt is its displacement, from the position fixes or the heading), the
+    held axes hardly move, so D_kj = (int tau_k dt - everything else) / int nu_j dt: no derivative
+    of noisy data, the measured forces averaged over the whole record. The held axis' own damping
+    is the identified one, the other terms the file's. The 95 % interval: ``_coupled_ci``.
     """
-    diag = {r.plan.index: r.damping.get("d_L", float(D_file[r.plan.index, r.plan.index]))
-            for r in results.values() if r.plan.kind == "method_one"}
+    own = {}
+    for r in results.values():
+        if r.plan.kind == "method_one":
+            i = r.plan.index
+            own[i] = {p: r.damping.get(p, float((vessel.D_L if p == "d_L" else vessel.D_Q)[i, i]))
+                      for p in ("d_L", "d_Q")}
     for name, r in results.items():
         if r.plan.kind != "method_one":
             continue
@@ -358,16 +366,89 @@ def coupled_terms(results: dict[str, AxisResult], measurements: dict[str, Measur
         t = m.t[sel]
         nu = np.where(np.isfinite(m.nu[sel]), m.nu[sel], 0.0)
         nu[:, j] = m.y[sel]
-        integ = np.trapezoid(nu, t, axis=0)
+        eta = np.where(np.isfinite(m.eta[sel]), m.eta[sel], 0.0) if m.eta is not None else None
         edge = max(3, len(t) // 100)
-        dnu = nu[-edge:].mean(axis=0) - nu[:edge].mean(axis=0)
-        for k in diag:
+        disp = float(np.trapezoid(nu[:, j], t))
+        for k in own:
             if k == j:
                 continue
-            impulse = float(np.trapezoid(m.tau[sel, k], t))
-            rest = float(M[k] @ dnu) + diag[k] * integ[k]
-            rest += sum(float(D_file[k, i]) * integ[i] for i in range(len(integ)) if i not in (j, k))
-            r.coupled[tau_names[k]] = ((impulse - rest) / integ[j], impulse, float(integ[j]))
+            impulse = _impulse(m, t[0], t[-1], k)
+            bal = _Balance(vessel, k, j, own[k], t, eta, edge)
+            dkj = (impulse - float(bal.rest(nu))) / disp
+            r.coupled[vessel.tau_names[k]] = (dkj, impulse, disp)
+            se_kk = _own_se(results, k, nu, t)
+            r.coupled_ci[vessel.tau_names[k]] = _coupled_ci(m, sel, vessel.nu_names, bal, nu, impulse,
+                                                            dkj, se_kk / abs(disp))
+
+
+def _impulse(m: Measurement, t0: float, t1: float, k: int) -> float:
+    """int tau_k dt over [t0, t1] on the log's every step (shaft speeds are logged each step; the
+    hold's fast corrections would alias on the slower sensor grid)."""
+    if m.t_log is None or m.tau_log is None:
+        sel = (m.t >= t0) & (m.t <= t1)
+        return float(np.trapezoid(m.tau[sel, k], m.t[sel]))
+    tl = m.t_log
+    inner = (tl > t0) & (tl < t1)
+    ts = np.concatenate([[t0], tl[inner], [t1]])
+    f = np.interp(ts, tl, m.tau_log[:, k])
+    return float(np.trapezoid(f, ts))
+
+
+class _Balance:
+    """Everything of row k's impulse balance but the unknown D_kj int nu_j, for nu (..., n, dof)."""
+
+    def __init__(self, vessel: VesselSpec, k: int, j: int, own: dict[str, float], t: np.ndarray,
+                 eta: np.ndarray | None, edge: int) -> None:
+        self.k, self.j, self.t, self.edge = k, j, t, edge
+        self.M_k = 0.5 * (vessel.M + vessel.M.T)[k]
+        self.DL, self.DQ = vessel.D_L[k].copy(), vessel.D_Q[k].copy()
+        self.DL[k], self.DQ[k] = own["d_L"], own["d_Q"]
+        self.DL[j] = 0.0  # the unknown
+        self.M_cor = vessel.M_RB + vessel.M_A if vessel.coriolis != "none" else None
+        self.g = 0.0
+        if vessel.dof == 6 and vessel.restoring is not None and eta is not None:
+            rs = vessel.restoring
+            co = restoring_coefficients(rs.weight, rs.buoyancy, rs.r_g, rs.r_b)
+            self.g = float(np.trapezoid(restoring_force(co, eta[:, 3], eta[:, 4])[:, k], t))
+
+    def rest(self, nu: np.ndarray) -> np.ndarray:
+        """M_k. dnu (the start at rest) + int (D_L nu + D_Q |nu| nu + C(nu) nu)_k dt + int g_k dt."""
+        f = nu @ self.DL + (np.abs(nu) * nu) @ self.DQ
+        if self.M_cor is not None:
+            f = f + coriolis_force(self.M_cor, nu)[..., self.k]
+        return nu[..., -self.edge:, :].mean(axis=-2) @ self.M_k + np.trapezoid(f, self.t, axis=-1) + self.g
+
+
+def _own_se(results: dict[str, AxisResult], k: int, nu: np.ndarray, t: np.ndarray) -> float:
+    """Standard error of the held axis' own damping force impulse (its fit's CIs, independent)."""
+    for r in results.values():
+        if r.plan.kind == "method_one" and r.plan.index == k:
+            ci = r.fits["record"].ci95
+            var = 0.0
+            for p, x in (("d_L", nu[:, k]), ("d_Q", np.abs(nu[:, k]) * nu[:, k])):
+                if p in ci:
+                    var += (0.5 * (ci[p][1] - ci[p][0]) / 1.96 * float(np.trapezoid(x, t))) ** 2
+            return math.sqrt(var)
+    return 0.0
+
+
+def _coupled_ci(m: Measurement, sel: np.ndarray, nu_names: list[str], bal: _Balance, nu: np.ndarray,
+                impulse: float, dkj: float, se_own: float) -> tuple[float, float]:
+    """95 % interval of an impulse estimate D_kj, from the sensor noise the file states.
+
+    With the measured forces exact (shaft speeds through the thrust law) the estimate's error is
+    the noise in the measured velocities: at the window's end (M_k. dnu; the start is rest by
+    design) and in their integrals (the trial axis' displacement, the held axes' drift).
+    ``COUPLED_DRAWS`` realisations of that noise, processed as the measurement was
+    (``noise_draws``: white on a sensor's samples, or position fixes differentiated and rotated),
+    are added to the measured velocities and go through the same balance; their spread, with the
+    held axis' identified damping's own standard error, gives the interval (normal).
+    """
+    rng = np.random.default_rng(COUPLED_SEED)
+    noisy = nu + noise_draws(m.noise_model, nu_names, m.t[sel], COUPLED_DRAWS, rng)  # (B, n, dof)
+    draws = (impulse - bal.rest(noisy)) / np.trapezoid(noisy[..., bal.j], bal.t, axis=-1)
+    sd = math.sqrt(float(np.var(draws)) + se_own**2)
+    return (dkj - 1.96 * sd, dkj + 1.96 * sd)
 
 
 def coefficient_names(axis: str) -> dict[str, str]:

@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import yaml
@@ -46,6 +47,9 @@ class Measurement:
     scenario: Path | None = None
     eta: np.ndarray | None = None  # (n, dof) measured pose at t (nan where no sensor has it)
     noise_nu: dict[str, float] = field(default_factory=dict)  # noise std per nu channel
+    noise_model: dict[str, Any] = field(default_factory=dict)  # nu channel -> how noise reaches it
+    t_log: np.ndarray | None = None  # the log's time (every master step) ...
+    tau_log: np.ndarray | None = None  # ... and the thrusters' force on it (impulses)
     truth: dict[str, np.ndarray] = field(default_factory=dict)  # true states (simulation only)
     wall: float = 0.0
 
@@ -84,11 +88,14 @@ def _window(n_per_s: float, seconds: float) -> int:
     return w + 1 if w % 2 == 0 else w
 
 
-def body_velocities(vessel: VesselSpec, result: RunResult, t_grid: np.ndarray, smooth_s: float
+def body_velocities(vessel: VesselSpec, result: RunResult, t_grid: np.ndarray, smooth_s: float,
+                    noise_model: dict[str, Any] | None = None
                     ) -> tuple[np.ndarray, dict[str, str], dict[str, float]]:
     """Body velocities at ``t_grid``: measured channels where a sensor has them, else the horizontal
     ones differentiated from the position fixes (Savitzky-Golay over ``smooth_s``) and rotated
-    by the measured heading. Returns (nu, source per channel, noise per channel)."""
+    by the measured heading. Returns (nu, source per channel, noise per channel); ``noise_model``
+    is filled with how the file's sensor noise reaches each channel (``NoiseModel.draw``)."""
+    nm = noise_model if noise_model is not None else {}
     t_all = result.time
     nu = np.full((len(t_grid), vessel.dof), np.nan)
     how: dict[str, str] = {}
@@ -100,6 +107,7 @@ def body_velocities(vessel: VesselSpec, result: RunResult, t_grid: np.ndarray, s
         idx = _samples(result, s[0])
         ts, ys = t_all[idx], result.signals[f"plant.meas_{name}"][idx]
         nu[:, j] = np.interp(t_grid, ts, ys)
+        nm[name] = {"t": ts, "sigma": s[1]}
         how[name] = f"{s[0]} ({name} measured)"
         noise[name] = s[1]
     missing = [n for n in ("u", "v") if n in vessel.nu_names and n not in how]
@@ -123,12 +131,51 @@ def body_velocities(vessel: VesselSpec, result: RunResult, t_grid: np.ndarray, s
         # noise of a quadratic Savitzky-Golay slope over w samples
         k = np.arange(w) - (w - 1) / 2
         sg_noise = pos[1] / (dt * math.sqrt(float(np.sum(k**2))))
+        derived = {"t": ts, "w": w, "dt": dt, "sigma": pos[1], "psi": psi_s, "sigma_psi": head[1],
+                   "n_dot": n_dot, "e_dot": e_dot}
         for name in missing:
+            nm[name] = {"derived": derived, "channel": name}
             nu[:, vessel.nu_names.index(name)] = np.interp(t_grid, ts, body[name])
             how[name] = (f"{name} differentiated from {pos[0]} positions (Savitzky-Golay, {w} samples = "
                          f"{w * dt:g} s, quadratic) and rotated by the {head[0]} heading")
             noise[name] = sg_noise
     return nu, how, noise
+
+
+def noise_draws(model: dict[str, Any], names: list[str], t: np.ndarray, n: int,
+                rng: np.random.Generator) -> np.ndarray:
+    """``n`` realisations (n, len(t), len(names)) of the sensor noise in the measured body
+    velocities, as the file states it and as ``body_velocities`` processes it: white noise on the
+    sensor's samples (interpolated like the data), or position and heading noise on the fixes,
+    Savitzky-Golay differentiated and rotated. Channels without a model get zeros."""
+    out = np.zeros((n, len(t), len(names)))
+
+    def interp(ts: np.ndarray, vals: np.ndarray) -> np.ndarray:  # vals (n, len(ts)) -> (n, len(t))
+        i = np.clip(np.searchsorted(ts, t) - 1, 0, len(ts) - 2)
+        w = np.clip((t - ts[i]) / (ts[i + 1] - ts[i]), 0.0, 1.0)
+        return vals[:, i] * (1.0 - w) + vals[:, i + 1] * w
+
+    derived_cache: dict[str, np.ndarray] = {}
+    for c, name in enumerate(names):
+        spec = model.get(name)
+        if spec is None:
+            continue
+        if "derived" not in spec:
+            out[:, :, c] = interp(spec["t"], rng.normal(0.0, spec["sigma"], (n, len(spec["t"]))))
+            continue
+        d = spec["derived"]
+        if not derived_cache:
+            shape = (n, len(d["t"]))
+            dn = savgol_filter(rng.normal(0.0, d["sigma"], shape), d["w"], 2, deriv=1, delta=d["dt"], axis=1)
+            de = savgol_filter(rng.normal(0.0, d["sigma"], shape), d["w"], 2, deriv=1, delta=d["dt"], axis=1)
+            psi = d["psi"] + rng.normal(0.0, d["sigma_psi"], shape)
+            nd, ed = d["n_dot"] + dn, d["e_dot"] + de
+            c0, s0 = np.cos(d["psi"]), np.sin(d["psi"])
+            cp, sp = np.cos(psi), np.sin(psi)
+            derived_cache["u"] = cp * nd + sp * ed - (c0 * d["n_dot"] + s0 * d["e_dot"])
+            derived_cache["v"] = -sp * nd + cp * ed - (-s0 * d["n_dot"] + c0 * d["e_dot"])
+        out[:, :, c] = interp(d["t"], derived_cache[spec["channel"]])
+    return out
 
 
 def measured_pose(vessel: VesselSpec, result: RunResult, t_grid: np.ndarray) -> np.ndarray:
@@ -161,7 +208,8 @@ def measure(tp: TrialPlan, vessel: VesselSpec, result: RunResult) -> Measurement
             raise TestplanError(f"vessel '{vessel.name}': nothing measures {chan}")
         t_grid = t_all[_samples(result, pos[0])]
     smooth = 0.15 * max(tp.t_step - tp.t_release, 20.0)
-    nu, how, noise = body_velocities(vessel, result, t_grid, smooth)
+    noise_model: dict[str, Any] = {}
+    nu, how, noise = body_velocities(vessel, result, t_grid, smooth, noise_model)
     if tp.kind == "release":
         idx = _samples(result, s[0])
         y = result.signals[f"plant.meas_{chan}"][idx]
@@ -179,4 +227,5 @@ def measure(tp: TrialPlan, vessel: VesselSpec, result: RunResult) -> Measurement
              if k.split(".", 1)[1] in vessel.eta_names + vessel.nu_names}
     truth["time"] = t_all
     return Measurement(tp, t_grid, y, tau, nu, src, sig, truth=truth, wall=result.wall_time,
-                       eta=measured_pose(vessel, result, t_grid), noise_nu=noise)
+                       eta=measured_pose(vessel, result, t_grid), noise_nu=noise, noise_model=noise_model,
+                       t_log=t_all, tau_log=tau_all)

@@ -119,8 +119,10 @@ def write_report(res: Any, out: Path) -> Path:
                 L.append("5. **Coupled terms** (impulse on each held axis from rest to rest, over the trial "
                          "axis' displacement):")
                 for tau, (dkj, imp, disp) in r.coupled.items():
+                    lo, hi = r.coupled_ci.get(tau, (math.nan, math.nan))
                     L.append(f"   - int tau_{tau} dt = {imp:.4g}, int {tp.nu} dt = {disp:.4g}: "
-                             f"D[{tau},{tp.nu}] = {dkj:.5g}")
+                             f"D[{tau},{tp.nu}] = {dkj:.5g}, 95 % CI [{_g(lo)}, {_g(hi)}] (the file's "
+                             "sensor noise through the same balance, 300 draws)")
                 L.append("")
         else:
             f1, f = r.fits["decay"], r.fits["record"]
