@@ -14,7 +14,8 @@ FMUs, in-process and against the hardware link alike. Its law differs:
   angles as in ``dp_pid``;
 - a DOF whose three gains are zero is **free** (no PID force at all), and the joystick force of
   its axis, ``joy_<axis> * joy_max_<tau>``, is the open-loop force profile on it (the scenario's
-  events set ``joy_<axis>``); a trial zeroes the gains of exactly one DOF;
+  events set ``joy_<axis>``); a surge/sway/yaw trial zeroes the gains of exactly one DOF, a
+  roll/pitch release also those of the DOFs its inertia couples to (they swing with it);
 - ``mode`` is ignored (there is one law).
 
 tau = -J(eta)^T [R(psi_0) (K_p e + K_d e_dot + K_i z)_translation ; (K_p e + K_d e_dot + K_i z)_angles]
