@@ -136,8 +136,8 @@ def saturate_integrate(
     z_max: np.ndarray,
     Jm: np.ndarray,
     tau: np.ndarray,
-) -> np.ndarray:
-    """tau = clip(tau_unsat, +-tau_max) into ``tau``; returns the new integral z
+) -> None:
+    """tau = clip(tau_unsat, +-tau_max) into ``tau``, the integral z updated in place
     (``ControllerBlock._integrate``: a saturated body DOF blocks the error components coupled
     to it, |J^T| > 0.1, unless the increment unwinds the integral; then z is clamped to z_max)."""
     d = e.shape[0]
@@ -168,8 +168,6 @@ def saturate_integrate(
         for i in range(d):
             if blocked[i]:
                 dz[i] = 0.0
-    zn = np.empty(d)
     for i in range(d):
         zi = z[i] + dz[i]
-        zn[i] = min(max(zi, -z_max[i]), z_max[i])
-    return zn
+        z[i] = min(max(zi, -z_max[i]), z_max[i])

@@ -166,8 +166,8 @@ def predict(
     Aw: np.ndarray,
     A: np.ndarray,
     angle_index: np.ndarray,
-) -> np.ndarray:
-    """k prediction sub-steps of dt (x in place, A updated); returns the new P (``predict``).
+) -> None:
+    """k prediction sub-steps of dt (x and P in place, A updated; ``ObserverBlock.predict``).
 
     x+ = x + dt (f + dt A f / 2), Phi = I + dt A + (dt A)^2 / 2, P+ = Phi P Phi^T + Q dt.
     """
@@ -184,13 +184,13 @@ def predict(
             for j in range(n):
                 Phi[i, j] = Phi[i, j] * 0.5 + hA[i, j]
             Phi[i, i] += 1.0
-        P = (Phi @ P) @ Phi.T
+        Pn = (Phi @ P) @ Phi.T
         for i in range(n):
-            P[i, i] += Qc[i] * dt
+            Pn[i, i] += Qc[i] * dt
+        P[:, :] = Pn
     for j in range(angle_index.shape[0]):
         i = angle_index[j]
         x[i] = wrap(x[i])
-    return P
 
 
 @kernel
@@ -274,11 +274,11 @@ def update_selection(
     var: np.ndarray,
     threshold: float,
     angle_index: np.ndarray,
-) -> tuple[bool, float, np.ndarray]:
+) -> tuple[bool, float]:
     """Update with channels that measure states ``idx`` directly (H = selection), Joseph form.
 
     Rejected (no change) when the NIS exceeds ``threshold`` (inf: no gate). Returns
-    (accepted, NIS, new P); x is updated in place.
+    (accepted, NIS); x and P are updated in place (no array to box on return).
     """
     n = x.shape[0]
     m = idx.shape[0]
@@ -293,7 +293,7 @@ def update_selection(
         S[i, i] += var[i]
     K, nis = _gain_and_nis(PHt, S, y)
     if nis > threshold:
-        return False, nis, P
+        return False, nis
     for r in range(n):
         s = 0.0
         for i in range(m):
@@ -316,14 +316,13 @@ def update_selection(
                 t1 += A1[r, idx[i]] * K[c, i]
                 t2 += (K[r, i] * var[i]) * K[c, i]
             Pn[r, c] = A1[r, c] - t1 + t2
-    out = A1
     for i in range(n):
         for j in range(n):
-            out[i, j] = (Pn[i, j] + Pn[j, i]) * 0.5
+            P[i, j] = (Pn[i, j] + Pn[j, i]) * 0.5
     for j in range(angle_index.shape[0]):
         i = angle_index[j]
         x[i] = wrap(x[i])
-    return True, nis, out
+    return True, nis
 
 
 @kernel
@@ -335,7 +334,7 @@ def update_general(
     var: np.ndarray,
     threshold: float,
     angle_index: np.ndarray,
-) -> tuple[bool, float, np.ndarray]:
+) -> tuple[bool, float]:
     """Update with a general H (the wave filter's sensors), Joseph form; as ``update_selection``."""
     n = x.shape[0]
     m = H.shape[0]
@@ -345,17 +344,34 @@ def update_general(
         S[i, i] += var[i]
     K, nis = _gain_and_nis(np.ascontiguousarray(PHt), S, y)
     if nis > threshold:
-        return False, nis, P
+        return False, nis
     x += K @ y
     IKH = -(K @ H)
     for i in range(n):
         IKH[i, i] += 1.0
     Pn = (IKH @ P) @ IKH.T + (K * var) @ K.T
-    out = np.empty((n, n))
     for i in range(n):
         for j in range(n):
-            out[i, j] = (Pn[i, j] + Pn[j, i]) * 0.5
+            P[i, j] = (Pn[i, j] + Pn[j, i]) * 0.5
     for j in range(angle_index.shape[0]):
         i = angle_index[j]
         x[i] = wrap(x[i])
-    return True, nis, out
+    return True, nis
+
+
+@kernel
+def update_measured(
+    x: np.ndarray,
+    P: np.ndarray,
+    idx: np.ndarray,
+    z: np.ndarray,
+    angle: np.ndarray,
+    var0: np.ndarray,
+    r_scale: float,
+    threshold: float,
+    angle_index: np.ndarray,
+) -> tuple[bool, float]:
+    """``innovation`` and ``update_selection`` in one call, with R = r_scale * var0 (one sensor)."""
+    y = innovation(z, x, idx, angle)
+    var = var0 * r_scale
+    return update_selection(x, P, idx, y, var, threshold, angle_index)

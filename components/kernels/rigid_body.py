@@ -321,14 +321,19 @@ def rk4(
     th: np.ndarray,
     flags: np.ndarray,
     angle_index: np.ndarray,
-) -> np.ndarray:
-    """``steps`` RK4 steps of dt with inputs held, angles wrapped after each (``VesselModel.rk4``)."""
+    out: np.ndarray,
+) -> None:
+    """``steps`` RK4 steps of dt from x with inputs held, angles wrapped after each, into ``out``
+    (``VesselModel.rk4``; out may be x itself). Writing into the caller's array, not returning a
+    new one: boxing a returned array costs more than a plant step's arithmetic."""
     n = x.shape[0]
     dof = flags[0]
     z = np.zeros(th.shape[1] + 3 * dof)
     k1, k2, k3, k4 = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
     xs = np.empty(n)
-    xc = x.copy()
+    xc = out
+    for i in range(n):
+        xc[i] = x[i]
     h2, h6 = 0.5 * dt, dt / 6.0
     for _ in range(steps):
         rhs(xc, ncmd, vcn, vce, tau_ext, has_ext, K, MS, MAL, ML, g6, th, flags, z, k1)
@@ -346,4 +351,3 @@ def rk4(
         for j in range(angle_index.shape[0]):
             i = angle_index[j]
             xc[i] = wrap(xc[i])
-    return xc
