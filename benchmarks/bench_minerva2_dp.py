@@ -92,8 +92,9 @@ def kernel_floor(repeat: int = 2000) -> float:
     x[6:12] = [0.2, 0.05, 0.02, 0.01, 0.01, 0.03]
     ncmd = np.full(model.m, 5.0)
     tau = np.zeros(model.dof)
+    out = np.empty_like(x)
     args = (x, ncmd, 0.01, 5, 0.1, 0.05, tau, False, p.K, p.MS, p.MAL, p.ML, p.g6, p.th, p.flags,
-            p.angle_index)
+            p.angle_index, out)
     rigid_body.rk4(*args)
     times = []
     for _ in range(5):
