@@ -118,7 +118,7 @@ def test_bounds_and_absent_values_are_the_effects_own() -> None:
 def test_start_grids_are_the_effects_own() -> None:
     from seafmu.identification import static
 
-    assert static._NONLINEAR == {"v_c", "n_0", "u_sat", "eta_rev"}
+    assert static._NONLINEAR == {"v_c", "n_0", "u_sat", "eta_rev", "p_n", "p_v"}  # p_*: the power laws
     assert effects.static_grids(2.0)["n_0"] == [0.1, 0.4]
     s = {"V": 2.0, "U": 3.0, "F": 10.0, "M": 5.0, "Tv": 4.0, "h": 0.1, "dur": 30.0}
     grid = effects.get("time_delay").timeseries_start_grid(s, {}, None, [])

@@ -111,17 +111,25 @@ def _fmt(x: float) -> str:
     return f"{x:.4g}"
 
 
+def finding(name: str, params: dict[str, float], trial: Trial) -> str:
+    """The effect's finding in words (its object's), without the numbers of the gain."""
+    obj = effects.get(name)
+    assert obj is not None, name
+    if trial.kind == "maneuver":
+        assert obj.maneuver
+        return obj.maneuver_evidence(params)
+    return obj.evidence(params, trial)
+
+
+def fit_bounds(trial: Trial) -> dict[str, tuple[float, float]]:
+    """The effects' parameter bounds in the fit of this trial's model family."""
+    return effects.bounds("static" if trial.kind == "static" else "timeseries")
+
+
 def evidence(name: str, params: dict[str, float], trial: Trial, base_val: float, ext_val: float,
              delta_aic: float, runner_up: str | None = None) -> str:
     """One sentence naming the cause in a naval architect's words, with the numbers that back it."""
-    if trial.kind == "maneuver":
-        obj = effects.get(name)
-        assert obj is not None and obj.maneuver
-        text = obj.maneuver_evidence(params)
-    else:
-        obj = effects.get(name)
-        assert obj is not None, name
-        text = obj.evidence(params, trial)
+    text = finding(name, params, trial)
     gain = (f" (held-out NRMSE {base_val:.3g} -> {ext_val:.3g}, ratio {base_val / ext_val:.2f}, "
             f"dAIC {delta_aic:.1f})") if ext_val > 0 else ""
     alias = f"; '{runner_up}' explains the data almost as well" if runner_up else ""

@@ -22,6 +22,8 @@ from typing import Any
 import numpy as np
 
 from seafmu.identification import catalogue, static, timeseries
+from seafmu.identification import effects as effect_objects
+from seafmu.identification.ambiguity import akaike_weights, discriminating_experiment, noise_level
 from seafmu.identification.catalogue import CATALOGUE, effect_params, null_value
 from seafmu.identification.fitting import FitResult
 
@@ -45,6 +47,8 @@ class Rule:
 
 @dataclass
 class Candidate:
+    """One extension of the baseline: a catalogue effect, or a combination of them ("a+b")."""
+
     effect: str
     fit: FitResult | None
     ratio: float = math.nan  # held-out NRMSE baseline / extended (> 1: extension better)
@@ -53,20 +57,52 @@ class Candidate:
     accepted: bool = False
     reason: str = ""
     seconds: float = 0.0
+    effects: tuple[str, ...] = ()  # the catalogue effects it adds (one for a single effect)
+    flags: list[str] = field(default_factory=list)  # claims of the model the data contradict
+
+    def __post_init__(self) -> None:
+        if not self.effects:
+            self.effects = tuple(self.effect.split("+"))
+
+    @property
+    def size(self) -> int:
+        return len(self.effects)
+
+    def effect_params(self) -> dict[str, float]:
+        f = self.fit
+        if f is None:
+            return {}
+        return {k: float(f.params[k]) for e in self.effects for k in effect_params(e, f.param_names)}
 
     def row(self) -> dict[str, Any]:
         f = self.fit
-        return {"effect": self.effect,
+        return {"effect": self.effect, "effects": list(self.effects),
                 "nrmse_validation": _num(f.nrmse_validation) if f else None,
                 "nrmse_fit": _num(f.nrmse_fit) if f else None,
                 "delta_aic": _num(self.delta_aic), "ratio": _num(self.ratio),
                 "significant": self.significant, "accepted": self.accepted, "reason": self.reason,
-                "params": {k: float(f.params[k]) for k in effect_params(self.effect, f.param_names)}
-                if f else {}}
+                "params": self.effect_params(), "flags": list(self.flags)}
 
 
 def _num(x: float) -> float | None:
     return float(x) if x is not None and math.isfinite(x) else None
+
+
+@dataclass
+class Alternative:
+    """A credible explanation beside (or being) the cause: its Akaike weight among the credible ones."""
+
+    candidate: Candidate
+    weight: float
+    delta_aic: float  # AIC minus the lowest AIC of the credible ones (Akaike's delta)
+    experiment: dict[str, Any] | None = None  # where it and the cause differ most (ambiguity.py)
+
+    def to_json(self) -> dict[str, Any]:
+        c = self.candidate
+        return {"effect": c.effect, "effects": list(c.effects), "weight": _num(self.weight),
+                "validation_nrmse_ratio": _num(c.ratio), "delta_aic": _num(self.delta_aic),
+                "delta_aic_vs_baseline": _num(c.delta_aic), "params": c.effect_params(),
+                "discriminating_experiment": self.experiment}
 
 
 @dataclass
@@ -79,6 +115,7 @@ class Diagnosis:
     evidence: str
     rule: Rule = field(default_factory=Rule)
     seconds: float = 0.0
+    alternatives: list[Alternative] = field(default_factory=list)  # credible ones, the cause first
 
     @property
     def extended(self) -> FitResult:
@@ -91,9 +128,17 @@ class Diagnosis:
 
     @property
     def effect(self) -> str:
+        """The cause's (main) effect: the one contributing most when several act together."""
         if self.cause:
-            return self.cause.effect
+            return self.effects[0]
         return "none" if self.tested else NOT_TESTED
+
+    @property
+    def effects(self) -> list[str]:
+        """Every effect of the cause, largest contribution first (empty: none found)."""
+        if not self.cause:
+            return []
+        return contribution_order(self.cause, self.candidates)
 
     def ranking(self) -> list[Candidate]:
         ok = [c for c in self.candidates if c.fit is not None]
@@ -109,11 +154,15 @@ class Diagnosis:
 
         b, e = self.baseline, self.extended
         ratio = b.nrmse_validation / e.nrmse_validation if e.nrmse_validation > 0 else math.nan
+        alts = [a.to_json() for a in self.alternatives]
         return {
             "trial": {"name": self.trial.name, "kind": self.trial.kind, "dof": self.trial.dof,
                       "baseline_model": self.trial.baseline, "provenance": self.trial.provenance},
             "baseline": summary(b),
-            "cause": {"effect": self.effect, "evidence": self.evidence, "tested": self.tested,
+            "cause": {"effect": self.effect, "effects": self.effects, "evidence": self.evidence,
+                      "tested": self.tested, "alternatives": alts,
+                      "discriminating_experiment": next((a["discriminating_experiment"] for a in alts[1:]
+                                                         if a["discriminating_experiment"]), None),
                       "ranking": [c.row() for c in self.ranking()],
                       "not_applicable": self.skipped},
             "extended": summary(e),
@@ -122,7 +171,8 @@ class Diagnosis:
                      "nrmse_validation_after": _num(e.nrmse_validation)},
             "rule": {"min_ratio": self.rule.min_ratio, "min_heldout_gain": self.rule.min_heldout_gain,
                      "max_delta_aic": self.rule.max_delta_aic,
-                     "significance": "95 % CI of the effect parameter excludes its 'absent' value"},
+                     "significance": "95 % CI of each effect's parameter excludes its 'absent' value",
+                     "combinations": "a combination must also beat each of its sub-models by the same rule"},
             "seconds": round(self.seconds, 3),
         }
 
@@ -142,13 +192,22 @@ def fit_baseline(trial: Trial, diagnosis: bool = False) -> FitResult:
     return timeseries.fit_timeseries(trial, timeseries.baseline_model(trial))
 
 
-def fit_extension(trial: Trial, base: FitResult, effect: str) -> FitResult:
+def fit_extension(trial: Trial, base: FitResult, effect: str | tuple[str, ...],
+                  seeds: list[Any] | None = None) -> FitResult:
+    """The baseline extended by one effect, or by several at once (started from ``seeds``: e.g. the
+    single-effect fits' values)."""
+    names = (effect,) if isinstance(effect, str) else tuple(effect)
     if trial.kind == "static":
-        model = static.extend(base.extras["model"], effect, trial)
-        return static.fit_static(trial, model, start={**base.params})
+        model = static.combined(trial, base, names)
+        start = next((s for s in seeds or [] if all(q in s for q in model.free)), {**base.params})
+        return static.fit_static(trial, model, start=start)
     if trial.kind == "maneuver":  # refit from the baseline's damping with the effect's parameters
-        return fit_maneuver(trial, "output_error", effect=effect, start=dict(base.params))
-    return timeseries.fit_effect(trial, base, effect)
+        if len(names) > 1:
+            raise TrialError(f"{trial.name}: a maneuver fit takes one extension at a time")
+        return fit_maneuver(trial, "output_error", effect=names[0], start=dict(base.params))
+    if len(names) == 1:
+        return timeseries.fit_effect(trial, base, names[0])
+    return timeseries.fit_effects(trial, base, names, seeds=seeds)
 
 
 def fit_maneuver(trial: Trial, method: str, effect: str | None = None,
@@ -220,8 +279,17 @@ def identify(trial: Trial) -> Identification:
     return ident
 
 
-def diagnose(trial: Trial, effects: list[str] | None = None, rule: Rule | None = None) -> Diagnosis:
-    """Baseline fit, every applicable catalogue effect as an extension, the acceptance rule."""
+# A combination search stops trying further combinations once the diagnosis has run this long
+# (the singles and the best pairs are always fitted).
+COMBINATION_BUDGET_S = 3.0
+MAX_PAIRS = 15  # pairs fitted at most, best screened first (within the time budget)
+MAX_TRIPLES = 3  # extensions of the best accepted pair by a third effect
+
+
+def diagnose(trial: Trial, effects: list[str] | None = None, rule: Rule | None = None,
+             combinations: bool = True) -> Diagnosis:
+    """Baseline fit, every applicable catalogue effect as an extension, then combinations of the
+    promising ones (``combinations``), the acceptance rule, the credible alternatives."""
     rule = rule or Rule()
     t0 = time.perf_counter()
     unknown = [e for e in effects or [] if e not in CATALOGUE]
@@ -242,43 +310,267 @@ def diagnose(trial: Trial, effects: list[str] | None = None, rule: Rule | None =
             cands.append(Candidate(name, None, reason=f"fit failed: {exc}", seconds=time.perf_counter() - t1))
             continue
         cands.append(judge(name, base, fit, trial, rule, time.perf_counter() - t1))
-    cause = choose(cands)
-    evidence = explain(trial, base, cands, cause, skipped)
-    return Diagnosis(trial, base, cands, skipped, cause, evidence, rule, time.perf_counter() - t0)
+    noise = min((noise_level(c.fit) for c in cands if c.fit is not None), default=noise_level(base))
+    for c in cands:
+        check_claims(c, trial, noise)
+    if combinations:
+        cands += search_combinations(trial, base, cands, rule, t0)
+    cause = choose(cands, rule)
+    alts = alternatives(trial, cause, cands)
+    evidence = explain(trial, base, cands, cause, skipped, alts)
+    return Diagnosis(trial, base, cands, skipped, cause, evidence, rule, time.perf_counter() - t0, alts)
 
 
 def judge(name: str, base: FitResult, fit: FitResult, trial: Trial, rule: Rule,
           seconds: float = 0.0) -> Candidate:
-    """Apply the acceptance rule to one refitted extension."""
+    """Apply the acceptance rule to one refitted extension (a combination: every effect in it must
+    have a significant parameter)."""
+    names = tuple(name.split("+"))
+    ratio, gain, dAIC = _compare(base, fit)
+    sig_each = []
+    at_bound = []
+    bounds = catalogue.fit_bounds(trial)
+    for e in names:
+        sig = False
+        for p in effect_params(e, fit.param_names):
+            if p in fit.ci95:
+                lo, hi = fit.ci95[p]
+                null = null_value(p, trial)
+                if math.isfinite(lo) and math.isfinite(hi) and not (lo <= null <= hi):
+                    sig = True
+            b = bounds.get(p)
+            if b is not None and p in fit.params and _at_bound(fit.params[p], b):
+                at_bound.append(p)
+        sig_each.append(sig)
+    n_val = int(fit.extras.get("n_validation", 0))
+    reasons = _rule_reasons(ratio, gain, dAIC, n_val, rule)
+    if not all(sig_each):
+        which = [e for e, ok in zip(names, sig_each, strict=True) if not ok]
+        reasons.append("parameter not significant (CI includes the no-effect value)" if len(names) == 1
+                       else f"{', '.join(which)}: parameter not significant")
+    if at_bound:
+        reasons.append(f"{', '.join(at_bound)} at the bound of its range: the data push the effect beyond "
+                       "what it can mean")
+    return Candidate(name, fit, ratio, dAIC, all(sig_each), not reasons, "; ".join(reasons) or "accepted",
+                     seconds, names)
+
+
+def _at_bound(x: float, b: tuple[float, float]) -> bool:
+    lo, hi = b
+    return any(math.isfinite(e) and abs(x - e) <= 1e-6 * max(1.0, abs(e)) for e in (lo, hi))
+
+
+def _compare(ref: FitResult, fit: FitResult) -> tuple[float, float, float]:
+    """Held-out ratio ref/fit, held-out gain n ln(ratio^2) and dAIC of fit against ref."""
     ev = fit.nrmse_validation
-    ratio = base.nrmse_validation / ev if ev > 0 and math.isfinite(ev) else (math.inf if ev == 0 else 0.0)
-    dAIC = fit.aic - base.aic
-    sig = False
-    for p in effect_params(name, fit.param_names):
-        if p in fit.ci95:
-            lo, hi = fit.ci95[p]
-            null = null_value(p, trial)
-            if math.isfinite(lo) and math.isfinite(hi) and not (lo <= null <= hi):
-                sig = True
-    reasons = []
+    ratio = ref.nrmse_validation / ev if ev > 0 and math.isfinite(ev) else (math.inf if ev == 0 else 0.0)
     n_val = int(fit.extras.get("n_validation", 0))
     gain = n_val * 2.0 * math.log(ratio) if ratio > 0 and math.isfinite(ratio) else (
         math.inf if ratio == math.inf else -math.inf)
+    return ratio, gain, fit.aic - ref.aic
+
+
+def _rule_reasons(ratio: float, gain: float, dAIC: float, n_val: int, rule: Rule,
+                  against: str = "") -> list[str]:
+    """Why the held-out and information criteria are not met (empty: they are)."""
+    vs = f" over {against}" if against else ""
+    reasons = []
     if not ratio >= rule.min_ratio:
-        reasons.append(f"held-out ratio {ratio:.3f} < {rule.min_ratio}")
+        reasons.append(f"held-out ratio{vs} {ratio:.3f} < {rule.min_ratio}")
     elif not gain >= rule.min_heldout_gain:
-        reasons.append(f"held-out gain n ln(ratio^2) = {gain:.1f} < {rule.min_heldout_gain:g} "
+        reasons.append(f"held-out gain{vs} n ln(ratio^2) = {gain:.1f} < {rule.min_heldout_gain:g} "
                        f"({n_val} held-out samples)")
     if not dAIC <= rule.max_delta_aic:
-        reasons.append(f"dAIC {dAIC:.1f} > {rule.max_delta_aic:g}")
-    if not sig:
-        reasons.append("parameter not significant (CI includes the no-effect value)")
-    return Candidate(name, fit, ratio, dAIC, sig, not reasons, "; ".join(reasons) or "accepted", seconds)
+        reasons.append(f"dAIC{vs} {dAIC:.1f} > {rule.max_delta_aic:g}")
+    return reasons
 
 
-def choose(cands: list[Candidate]) -> Candidate | None:
-    """Best accepted candidate: lowest held-out NRMSE; within 1 % of it, the lowest AIC."""
+def check_claims(c: Candidate, trial: Trial, noise: float) -> None:
+    """Reject an accepted extension whose claim the measured points contradict beyond the noise
+    (each effect's ``contradiction``: thrust measured inside a claimed deadband, a cap above every
+    command); an unidentifiable parameter already fails significance (infinite variance)."""
+    if c.fit is None:
+        return
+    for e in c.effects:
+        obj = effect_objects.get(e)
+        why = obj.contradiction(c.fit.params, trial, c.fit, noise) if obj is not None else None
+        if why:
+            c.flags.append(why)
+    if c.flags and c.accepted:
+        c.accepted = False
+        c.reason = "claim contradicted by the data: " + "; ".join(c.flags)
+
+
+def search_combinations(trial: Trial, base: FitResult, singles: list[Candidate], rule: Rule,
+                        t0: float) -> list[Candidate]:
+    """Pairs (then triples) of effects fitted together, judged by the same rule against the baseline
+    and against each of their sub-models, so a combination is accepted only where every effect in it
+    earns its parameters.
+
+    A pair can explain data where each effect alone fails (a single fit stuck where its effect is
+    absent), so pairs are not built from accepted singles: every compatible pair of applicable
+    effects is screened by the cost of its best start (the single fits' values reused, and each
+    effect's start grid: simulations, no fit; ``screen``), and the most promising are fitted.
+    """
+    if trial.kind == "maneuver" or trial.dof == "sway_yaw":
+        return []  # the maneuver fit takes one extension; a sway_yaw trial tests the coupling only
+    pool = [c for c in singles if c.fit is not None and math.isfinite(c.fit.nrmse_validation)]
+    by_name = {c.effect: c for c in pool}
+    pairs = [(a, b) for i, a in enumerate(pool) for b in pool[i + 1:] if _compatible(a.effects + b.effects)]
+    ranked = _screened(trial, base, [(a, b) for a, b in pairs])
+    out: list[Candidate] = []
+    noise = min((noise_level(c.fit) for c in pool), default=noise_level(base))
+    base_rss = float(base.extras.get("rss", math.inf))
+    for k, (parts, start, cost) in enumerate(ranked[:MAX_PAIRS]):
+        if k >= 2 and (time.perf_counter() - t0 > COMBINATION_BUDGET_S or not cost < base_rss):
+            break
+        out.append(_fit_combination(trial, base, parts, list(parts), rule, noise, start))
+    accepted_pairs = sorted((c for c in out if c.accepted), key=lambda c: c.fit.aic)  # type: ignore[union-attr]
+    if accepted_pairs:
+        pair = accepted_pairs[0]
+        thirds = [(pair, c) for c in pool if c.effect not in pair.effects
+                  and _compatible(pair.effects + c.effects)]
+        for parts, start, _ in _screened(trial, base, thirds)[:MAX_TRIPLES]:
+            if time.perf_counter() - t0 > COMBINATION_BUDGET_S:
+                break
+            triple = _fit_combination(trial, base, parts, list(parts), rule, noise, start)
+            out.append(triple)
+            if triple.accepted:
+                out += _against_sub_pairs(trial, base, triple, by_name, out, rule, noise)
+    return out
+
+
+def _against_sub_pairs(trial: Trial, base: FitResult, triple: Candidate, singles: dict[str, Candidate],
+                       fitted: list[Candidate], rule: Rule, noise: float) -> list[Candidate]:
+    """A triple earns its third parameter only over every pair inside it: the pairs not fitted yet
+    are fitted now from the triple's values (they may explain the data themselves), then the
+    triple is judged against each. Returns the pairs fitted here."""
+    assert triple.fit is not None
+    have = {frozenset(c.effects): c for c in fitted if c.fit is not None}
+    new: list[Candidate] = []
+    for drop in triple.effects:
+        names = tuple(e for e in triple.effects if e != drop)
+        sub = have.get(frozenset(names))
+        if sub is None and all(e in singles for e in names):
+            parts = tuple(singles[e] for e in names)
+            start = ({k: v for k, v in triple.fit.params.items()},
+                     list(triple.fit.extras.get("initial_states", [])))
+            sub = _fit_combination(trial, base, parts, list(parts), rule, noise, start)
+            new.append(sub)
+        if sub is None or sub.fit is None:
+            continue
+        n_val = int(triple.fit.extras.get("n_validation", 0))
+        ratio, gain, dAIC = _compare(sub.fit, triple.fit)
+        earned = _rule_reasons(ratio, gain, dAIC, n_val, rule, against=sub.effect)
+        if earned and triple.accepted:
+            triple.accepted = False
+            triple.reason = "does not earn its parameters: " + "; ".join(earned)
+    return new
+
+
+def _screened(trial: Trial, base: FitResult, combos: list[tuple[Candidate, ...]]) -> list[
+        tuple[tuple[Candidate, ...], Any, float]]:
+    """Combinations with their best start and its cost, cheapest first."""
+    out = []
+    for parts in combos:
+        names = tuple(e for p in parts for e in p.effects)
+        seeds = _seeds(parts)
+        try:
+            if trial.kind == "static":
+                start, cost = static.screen(trial, base, names, [s for s, _ in seeds])
+            else:
+                start, cost = timeseries.screen(trial, base, names, seeds)
+        except (ValueError, np.linalg.LinAlgError, FloatingPointError):
+            continue
+        out.append((parts, start, cost))
+    out.sort(key=lambda r: r[2])
+    return out
+
+
+def _seeds(parts: tuple[Candidate, ...]) -> list[tuple[dict[str, float], list[tuple[float, ...]]]]:
+    """Starts of a combined fit from its parts' fits: all values of one (with its fitted initial
+    states), the others' effect values."""
+    seeds = []
+    for i, p in enumerate(parts):
+        if p.fit is None:
+            continue
+        seed = dict(p.fit.params)
+        for j, q in enumerate(parts):
+            if j != i:
+                seed.update(q.effect_params())
+        seeds.append((seed, list(p.fit.extras.get("initial_states", []))))
+    return seeds
+
+
+def _compatible(names: tuple[str, ...]) -> bool:
+    if len(set(names)) < len(names):
+        return False
+    for n in names:
+        obj = effect_objects.get(n)
+        if obj is not None and set(obj.excludes) & set(names):
+            return False
+    return True
+
+
+def _fit_combination(trial: Trial, base: FitResult, parts: tuple[Candidate, ...], subs: list[Candidate],
+                     rule: Rule, noise: float, start: Any = None) -> Candidate:
+    """Fit the effects of ``parts`` together (from ``start``, else their fits' values) and judge the
+    result against the baseline and against every sub-model in ``subs``."""
+    names = tuple(e for p in parts for e in p.effects)
+    name = "+".join(names)
+    seeds = ([start] if start else []) + _seeds(parts)
+    if trial.kind == "static":  # a table's start is its values (no initial states)
+        seeds = [s[0] if isinstance(s, tuple) else s for s in seeds]
+    t1 = time.perf_counter()
+    try:
+        fit = fit_extension(trial, base, names, seeds=seeds)
+    except (ValueError, np.linalg.LinAlgError, FloatingPointError) as exc:
+        return Candidate(name, None, reason=f"fit failed: {exc}", seconds=time.perf_counter() - t1,
+                         effects=names)
+    cand = judge(name, base, fit, trial, rule, time.perf_counter() - t1)
+    check_claims(cand, trial, noise)
+    n_val = int(fit.extras.get("n_validation", 0))
+    earned: list[str] = []
+    for sub in subs:
+        if sub.fit is None:
+            continue
+        ratio, gain, dAIC = _compare(sub.fit, fit)
+        earned += _rule_reasons(ratio, gain, dAIC, n_val, rule, against=sub.effect)
+    if earned and cand.accepted:
+        cand.accepted = False
+        cand.reason = "does not earn its parameters: " + "; ".join(earned)
+    return cand
+
+
+def contribution_order(cause: Candidate, cands: list[Candidate]) -> list[str]:
+    """The cause's effects, largest contribution first: how much worse (AIC) the fit gets without
+    each one (its sub-model fitted in the search; a single effect's own dAIC where that is all)."""
+    if cause.size == 1 or cause.fit is None:
+        return list(cause.effects)
+    fitted = {frozenset(c.effects): c for c in cands if c.fit is not None}
+
+    def loss(e: str) -> float:
+        rest = fitted.get(frozenset(cause.effects) - {e})
+        if rest is not None:
+            return rest.fit.aic - cause.fit.aic  # type: ignore[union-attr]
+        one = fitted.get(frozenset({e}))
+        return -one.delta_aic if one is not None else 0.0
+
+    return sorted(cause.effects, key=lambda e: -loss(e))
+
+
+def choose(cands: list[Candidate], rule: Rule | None = None) -> Candidate | None:
+    """Best accepted candidate: lowest held-out NRMSE; within 1 % of it, the lowest AIC.
+
+    Two kinds of candidate must first earn their place by the rule's margins (held-out ratio and
+    gain, dAIC) over every simpler accepted explanation: a combination over each accepted candidate
+    with fewer effects (the smallest combination that explains the data), and a general family
+    (a power law, ``general``) over each accepted specific effect whose shape it contains.
+    """
+    rule = rule or Rule()
     ok = [c for c in cands if c.accepted and c.fit is not None]
+    eligible = [c for c in ok if not _beaten_by_simpler(c, ok, rule)]
+    ok = eligible or ok
     if not ok:
         return None
     best = min(c.fit.nrmse_validation for c in ok)  # type: ignore[union-attr]
@@ -286,8 +578,48 @@ def choose(cands: list[Candidate]) -> Candidate | None:
     return min(near, key=lambda c: c.fit.aic)  # type: ignore[union-attr]
 
 
+def _general(c: Candidate) -> bool:
+    return any(getattr(effect_objects.get(e), "general", False) for e in c.effects)
+
+
+def _beaten_by_simpler(c: Candidate, ok: list[Candidate], rule: Rule) -> bool:
+    """True when a simpler accepted candidate explains the data as well as ``c`` within the rule."""
+    assert c.fit is not None
+    n_val = int(c.fit.extras.get("n_validation", 0))
+    for other in ok:
+        if other is c or other.fit is None:
+            continue
+        simpler = other.size < c.size or (other.size == c.size and _general(c) and not _general(other))
+        if simpler:
+            ratio, gain, dAIC = _compare(other.fit, c.fit)
+            if _rule_reasons(ratio, gain, dAIC, n_val, rule):
+                return True
+    return False
+
+
+def alternatives(trial: Trial, cause: Candidate | None, cands: list[Candidate]) -> list[Alternative]:
+    """Every credible explanation (accepted by the rule), the cause first, with its Akaike weight
+    among them and the experiment that would tell it from the cause. An effect that is part of the
+    cause is not an alternative to it."""
+    if cause is None or cause.fit is None:
+        return []
+    others = [c for c in cands if c.accepted and c.fit is not None and c is not cause
+              and not set(c.effects) <= set(cause.effects)]
+    credible = [cause, *sorted(others, key=lambda c: c.fit.aic)]  # type: ignore[union-attr]
+    aics = [c.fit.aic for c in credible]  # type: ignore[union-attr]
+    weights = akaike_weights(aics)
+    lo = min(aics)
+    out = []
+    for c, w, a in zip(credible, weights, aics, strict=True):
+        exp = None
+        if c is not cause:
+            exp = discriminating_experiment(trial, cause.fit, c.fit, cause.effect, c.effect)  # type: ignore[arg-type]
+        out.append(Alternative(c, w, a - lo, exp))
+    return out
+
+
 def explain(trial: Trial, base: FitResult, cands: list[Candidate], cause: Candidate | None,
-            skipped: dict[str, str]) -> str:
+            skipped: dict[str, str], alts: list[Alternative] | None = None) -> str:
     if cause is None:
         tried = [c for c in cands if c.fit is not None]
         if not tried:
@@ -311,16 +643,33 @@ def explain(trial: Trial, base: FitResult, cands: list[Candidate], cause: Candid
             text += (f"; but the baseline residual is not white (Ljung-Box p = {w['ljung_box_p']:.2g}): "
                      "structure remains that no catalogue effect explains")
         return text + "."
-    # A second accepted effect that is almost as good is named: the data may not separate them.
-    runner = None
-    for c in cands:
-        if c is not cause and c.accepted and c.fit is not None and cause.fit is not None and \
-                c.fit.nrmse_validation <= cause.fit.nrmse_validation * 1.02 and \
-                abs(c.fit.aic - cause.fit.aic) < 4:
-            runner = c.effect
     assert cause.fit is not None
-    return catalogue.evidence(cause.effect, cause.fit.params, trial, base.nrmse_validation,
-                              cause.fit.nrmse_validation, cause.delta_aic, runner)
+    words = _params_for_words(cause.fit)
+    order = contribution_order(cause, cands)
+    if cause.size == 1:
+        text = catalogue.evidence(cause.effect, words, trial, base.nrmse_validation,
+                                  cause.fit.nrmse_validation, cause.delta_aic)
+    else:
+        parts = [catalogue.finding(e, words, trial) for e in order]
+        listed = "; ".join(f"({i + 1}) {p}" for i, p in enumerate(parts))
+        text = (f"{len(order)} effects act together: {listed} (combined: held-out NRMSE "
+                f"{base.nrmse_validation:.3g} -> {cause.fit.nrmse_validation:.3g}, ratio {cause.ratio:.2f}, "
+                f"dAIC {cause.delta_aic:.1f}).")
+    others = (alts or [])[1:]
+    if alts and others:
+        listed = ", ".join(f"'{a.candidate.effect}' (Akaike weight {a.weight:.2f}, held-out ratio "
+                           f"{a.candidate.ratio:.2f})" for a in others)
+        text += f" Also credible: {listed}; '{cause.effect}' has weight {alts[0].weight:.2f}."
+    return text
+
+
+def _params_for_words(fit: FitResult) -> dict[str, float]:
+    """The fitted values, and each parameter's CI half-width as ``<name>_halfwidth``."""
+    out = dict(fit.params)
+    for p, (lo, hi) in fit.ci95.items():
+        if math.isfinite(lo) and math.isfinite(hi):
+            out[f"{p}_halfwidth"] = 0.5 * (hi - lo)
+    return out
 
 
 # -- the pendulum: what differentiation does ---------------------------------------------------------
@@ -385,6 +734,7 @@ def pendulum_equation_error(trial: Trial, oe: FitResult) -> tuple[dict[str, FitR
     return out, notes
 
 
-__all__ = ["DEMO_EFFECTS", "NOT_TESTED", "SURGE", "Candidate", "Diagnosis", "Identification", "Rule",
-           "choose", "demo_trial", "diagnose", "explain", "fit_baseline", "fit_extension", "fit_maneuver",
-           "identify", "judge", "maneuver_data", "pendulum_equation_error"]
+__all__ = ["DEMO_EFFECTS", "NOT_TESTED", "SURGE", "Alternative", "Candidate", "Diagnosis", "Identification",
+           "Rule", "alternatives", "check_claims", "choose", "contribution_order", "demo_trial", "diagnose",
+           "explain", "fit_baseline", "fit_extension", "fit_maneuver", "identify", "judge", "maneuver_data",
+           "pendulum_equation_error", "search_combinations"]

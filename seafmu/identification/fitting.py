@@ -107,16 +107,31 @@ def aic_bic(rss: float, n: int, k: int) -> tuple[float, float]:
 
 
 def covariance_from_jacobian(jac: np.ndarray, residual: np.ndarray) -> np.ndarray:
-    """Parameter covariance s² (JᵀJ)⁻¹ with s² = RSS/(n − p); pseudo-inverse when singular."""
+    """Parameter covariance s² (JᵀJ)⁻¹ with s² = RSS/(n − p).
+
+    Where the data cannot move the fit along some direction of the parameters (a singular value
+    of J at rounding level: a saturation cap above every command, a parameter with no effect on
+    the output), every parameter on that direction has an infinite variance — unidentifiable, not
+    known exactly — and the rest of the covariance comes from the pseudo-inverse.
+    """
     jac = np.asarray(jac, dtype=float)
     r = np.asarray(residual, dtype=float).ravel()
     n, p = jac.shape
     s2 = float(np.sum(r**2)) / max(n - p, 1)
-    # SVD-based pseudo-inverse: robust when the data cannot separate two parameters.
-    _, sv, vt = np.linalg.svd(jac, full_matrices=False)
+    # vt holds every direction of the parameters (full_matrices only when rows < parameters: cheap)
+    _, sv, vt = np.linalg.svd(jac, full_matrices=n < p)
     tol = np.finfo(float).eps * max(jac.shape) * (sv[0] if sv.size else 0.0)
-    inv = np.where(sv > tol, 1.0 / np.where(sv > tol, sv, 1.0) ** 2, 0.0)
-    return s2 * (vt.T * inv) @ vt
+    full = np.zeros(p)
+    full[: sv.size] = sv
+    ok = full > tol
+    inv = np.where(ok, 1.0 / np.where(ok, full, 1.0) ** 2, 0.0)
+    cov = s2 * (vt.T * inv) @ vt
+    null = vt[~ok]  # directions the data do not determine
+    if null.size:
+        lost = np.any(np.abs(null) > 1e-8, axis=0)
+        idx = np.flatnonzero(lost)
+        cov[idx, idx] = np.inf  # off-diagonals keep the pseudo-inverse's (correlation_matrix)
+    return cov
 
 
 def confidence_intervals(
@@ -130,12 +145,19 @@ def confidence_intervals(
 
 
 def correlation_matrix(cov: np.ndarray) -> np.ndarray:
-    """Correlation from covariance; zero-variance parameters get a unit diagonal."""
+    """Correlation from covariance; zero-variance parameters get a unit diagonal. Two parameters of
+    infinite variance (unidentifiable) that the pseudo-inverse still couples trade off exactly: +-1."""
     cov = np.asarray(cov, dtype=float)
-    sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    d = np.diag(cov)
+    sd = np.sqrt(np.clip(d, 0.0, None))
     with np.errstate(divide="ignore", invalid="ignore"):
         corr = cov / np.outer(sd, sd)
     corr = np.where(np.isfinite(corr), corr, 0.0)
+    lost = ~np.isfinite(d)
+    if np.count_nonzero(lost) > 1:
+        both = np.outer(lost, lost)
+        finite = np.where(np.isfinite(cov), cov, 0.0)
+        corr = np.where(both & (finite != 0), np.sign(finite), corr)
     np.fill_diagonal(corr, 1.0)
     return np.clip(corr, -1.0, 1.0)
 
@@ -199,6 +221,12 @@ def correlation_warnings(names: list[str], corr: np.ndarray,
         r = float(corr[names.index(a), names.index(b)])
         out.append(f"{a} and {b} are correlated (r = {r:+.3f}): not separately identifiable from this data")
     return out
+
+
+def unidentifiable_warnings(ci: dict[str, tuple[float, float]], names: list[str]) -> list[str]:
+    """One warning per parameter with an infinite interval (the data do not determine it)."""
+    return [f"{p} is not identifiable from this data (infinite variance): the fit cannot tell its value"
+            for p in names if p in ci and not (np.isfinite(ci[p][0]) and np.isfinite(ci[p][1]))]
 
 
 def ci_excludes_zero(ci: tuple[float, float]) -> bool:

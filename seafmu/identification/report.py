@@ -360,7 +360,11 @@ def write_diagnosis_report(diag: Diagnosis, out: Path) -> Path:
         lines += [f"Gain: held-out NRMSE {_g(g['nrmse_validation_before'])} → "
                   f"{_g(g['nrmse_validation_after'])} "
                   f"(ratio {_g(g['validation_nrmse_ratio'])}), ΔAIC {_g(g['delta_aic'])}.", ""]
-    figs = _figures(trial, diag.baseline, ext, out, effect)
+        if len(diag.effects) > 1:
+            lines += ["Effects of the cause, largest contribution first: " +
+                      ", ".join(f"`{e}`" for e in diag.effects) + ".", ""]
+    lines += alternatives_lines(diag)
+    figs = _figures(trial, diag.baseline, ext, out, "+".join(diag.effects) or effect)
     corr: dict[str, float] = {}
     if trial.kind not in ("static", "maneuver"):
         corr = plot_regressors(trial, diag.baseline, out / "residual_vs_regressors.png")
@@ -391,12 +395,30 @@ def write_diagnosis_report(diag: Diagnosis, out: Path) -> Path:
               f"ΔAIC ≤ {r.max_delta_aic:g}, 95 % CI of the effect parameter excludes its no-effect value; "
               "best = lowest held-out NRMSE (within 1 %: lowest AIC).", ""]
     if diag.cause and diag.cause.fit:
-        lines += [f"## 3. Extended model (baseline + `{effect}`: {CATALOGUE[effect].meaning})", ""]
+        added = " + ".join(f"`{e}`: {CATALOGUE[e].meaning}" for e in diag.effects)
+        lines += [f"## 3. Extended model (baseline + {added})", ""]
         lines += [*fit_table(diag.cause.fit, trial), ""]
     lines += ["## Figures", ""] + [f"![{f.stem}]({f.name})" for f in figs] + [""]
     path = out / "diagnosis.md"
     path.write_text("\n".join(lines))
     return path
+
+
+def alternatives_lines(diag: Diagnosis) -> list[str]:
+    """The credible explanations (each passes the acceptance rule) with their Akaike weights, and
+    the experiments that would tell them from the cause."""
+    if len(diag.alternatives) < 2:
+        return []
+    lines = ["### Credible alternatives", "",
+             "More than one explanation passes the acceptance rule. Akaike weight: the relative "
+             "likelihood of each among them; ΔAIC from the lowest.", "",
+             "| explanation | Akaike weight | held-out ratio | ΔAIC | to tell it from the cause |",
+             "|---|---|---|---|---|"]
+    for i, a in enumerate(diag.alternatives):
+        c = a.candidate
+        exp = "(the cause)" if i == 0 else (a.experiment["text"] if a.experiment else "–")
+        lines.append(f"| `{c.effect}` | {a.weight:.3f} | {_g(c.ratio)} | {_g(a.delta_aic)} | {exp} |")
+    return [*lines, ""]
 
 
 def _figures(trial: Trial, base: FitResult, ext: FitResult | None, out: Path, effect: str,
@@ -450,7 +472,12 @@ def summary_lines(obj: Identification | Diagnosis) -> list[str]:
     b = d.baseline
     lines = [f"{trial.label}: baseline {_baseline_name(trial, b)}",
              f"  baseline: {params(b)}; held-out NRMSE {_g(b.nrmse_validation)}, AIC {_g(b.aic, 6)}",
-             f"  cause: {d.effect} — {d.evidence}"]
+             f"  cause: {' + '.join(d.effects) or d.effect} — {d.evidence}"]
+    for a in d.alternatives[1:]:
+        lines.append(f"  also credible: {a.candidate.effect} (Akaike weight {a.weight:.3f}, held-out ratio "
+                     f"{_g(a.candidate.ratio)}, dAIC {_g(a.delta_aic)} from the best)")
+        if a.experiment:
+            lines.append(f"    to tell them apart: {a.experiment['text']}")
     if d.cause and d.cause.fit:
         e = d.cause.fit
         lines.append(f"  extended: {params(e)}; held-out NRMSE {_g(e.nrmse_validation)}, AIC {_g(e.aic, 6)}")

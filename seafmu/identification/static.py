@@ -20,6 +20,7 @@ from seafmu.identification.fitting import (
     fit_statistics,
     nrmse,
     rmse,
+    unidentifiable_warnings,
 )
 from seafmu.identification.trial import Trial, TrialError
 
@@ -118,9 +119,10 @@ def extend(model: StaticModel, effect: str, trial: Trial) -> StaticModel:
     return m
 
 
-def _solve(model: StaticModel, x: np.ndarray, y: np.ndarray, start: np.ndarray | None) -> tuple[
-        np.ndarray, np.ndarray]:
-    """Parameter vector and Jacobian (design matrix) at the solution."""
+def _solve(model: StaticModel, x: np.ndarray, y: np.ndarray, start: np.ndarray | None,
+           multistart: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Parameter vector and Jacobian (design matrix) at the solution (from ``start`` and, with
+    ``multistart``, the start grid too)."""
     if model.linear:
         A = model.design(x)
         theta, *_ = np.linalg.lstsq(A, y, rcond=None)
@@ -130,7 +132,8 @@ def _solve(model: StaticModel, x: np.ndarray, y: np.ndarray, start: np.ndarray |
     hi = np.array([bounds.get(p, (-np.inf, np.inf))[1] for p in model.free])
     best = None
     starts = [start] if start is not None else []
-    starts += _starts(model, x, y)
+    if multistart or not starts:
+        starts += _starts(model, x, y)
     for s0 in starts:
         with np.errstate(invalid="ignore"):
             inside_lo = np.where(np.isfinite(lo), lo + 1e-9 * (np.abs(lo) + 1), lo)
@@ -163,6 +166,33 @@ def _starts(model: StaticModel, x: np.ndarray, y: np.ndarray) -> list[np.ndarray
     return out
 
 
+def combined(trial: Trial, base: FitResult, names: tuple[str, ...]) -> StaticModel:
+    """The baseline table model extended by every effect of ``names``."""
+    model = base.extras["model"]
+    for name in names:
+        model = extend(model, name, trial)
+    if len(names) > 1:
+        model.effect = "+".join(names)
+    return model
+
+
+def screen(trial: Trial, base: FitResult, names: tuple[str, ...], seeds: list[dict[str, float]]) -> tuple[
+        dict[str, float] | None, float]:
+    """The best start of a combined table model and its RSS, from ``seeds`` and the start grid of its
+    nonlinear parameters (linear ones solved): no fit. Ranks combinations before fitting any."""
+    model = combined(trial, base, names)
+    x, y, _ = table_data(trial)
+    starts = [np.array([s[q] for q in model.free]) for s in seeds if all(q in s for q in model.free)]
+    starts += _starts(model, x, y)
+    best, best_cost = None, np.inf
+    for s0 in starts:
+        with np.errstate(all="ignore"):
+            cost = float(np.sum((model.predict(x, s0) - y) ** 2))
+        if np.isfinite(cost) and cost < best_cost:
+            best, best_cost = dict(zip(model.free, (float(v) for v in s0), strict=True)), cost
+    return best, best_cost
+
+
 def fit_static(trial: Trial, model: StaticModel, start: dict[str, float] | None = None) -> FitResult:
     """Fit a table by least squares; held-out error by leave-one-out over groups (mirror pairs)."""
     x, y, groups = table_data(trial)
@@ -178,7 +208,9 @@ def fit_static(trial: Trial, model: StaticModel, start: dict[str, float] | None 
     loo = np.empty_like(y)
     for g in np.unique(groups):
         keep = groups != g
-        th_g, _ = _solve(model, x[keep], y[keep], theta)
+        # A combination's leave-one-out refits start from its full-data solution only (its grid is
+        # a product of the effects' grids: the multistart of every refit would dominate the search).
+        th_g, _ = _solve(model, x[keep], y[keep], theta, multistart="+" not in (model.effect or ""))
         loo[~keep] = model.predict(x[~keep], th_g)
     n = y.size
     aic, bic = aic_bic(float(np.sum(resid**2)), n, p)
@@ -188,7 +220,8 @@ def fit_static(trial: Trial, model: StaticModel, start: dict[str, float] | None 
         nrmse_fit=nrmse(y, yhat), nrmse_validation=nrmse(y, loo), aic=aic, bic=bic,
         whiteness={"lags": 0, "fraction_outside": float("nan"), "white": None,
                    "note": "table: points are independent steady measurements, whiteness not tested"},
-        warnings=sanity(params, trial, x) + correlation_warnings(model.free, corr), n_samples=n,
+        warnings=sanity(params, trial, x) + correlation_warnings(model.free, corr)
+        + unidentifiable_warnings(ci, model.free), n_samples=n,
         method="linear least squares" if model.linear else "nonlinear least squares (trf)",
         extras={"rmse": rmse(resid, p), "rmse_plain": rmse(resid), "x": x, "y": y, "yhat": yhat,
                 "loo": loo, "residual": resid, "n_validation": int(n), "rss": float(np.sum(resid**2)),

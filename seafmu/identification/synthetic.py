@@ -30,9 +30,32 @@ def _hiding(effect: str | None, kind: str, A: float) -> Hiding:
     return obj.hide(kind, A)
 
 
-def demo_trial(effect: str | None, kind: str | None = None, noise: float = 0.01, amplitude: float = 1.0,
-               seed: int = 0) -> Trial:
-    """A synthetic trial in which `effect` is hidden (None: clean data of `kind`).
+def merge_hidings(names: tuple[str, ...], hidings: list[Hiding]) -> Hiding:
+    """Several effects hidden in one trial: their truths and constants together; a trial setting
+    (baseline, starts, levels, laws) that two of them set differently cannot be shared."""
+    fields = ("baseline", "starts", "levels", "restoring", "thrust_law", "input_kind", "trial_restoring",
+              "vessel")
+    merged: dict[str, object] = {}
+    for f in fields:
+        vals = [(n, getattr(h, f)) for n, h in zip(names, hidings, strict=True) if getattr(h, f) is not None]
+        if len({repr(v) for _, v in vals}) > 1:
+            raise ValueError(f"demo: {' and '.join(n for n, _ in vals)} cannot be hidden together "
+                             f"(each sets the trial's {f.replace('_', ' ')} differently)")
+        merged[f] = vals[0][1] if vals else None
+    truth: dict[str, float] = {}
+    constants: dict[str, float] = {}
+    plant: dict[str, float] = {}
+    for h in hidings:
+        truth.update(h.truth)
+        constants.update(h.constants)
+        plant.update(h.plant)
+    return Hiding(truth=truth, constants=constants, plant=plant, **merged)  # type: ignore[arg-type]
+
+
+def demo_trial(effect: str | tuple[str, ...] | None, kind: str | None = None, noise: float = 0.01,
+               amplitude: float = 1.0, seed: int = 0) -> Trial:
+    """A synthetic trial in which `effect` is hidden — one name, several names at once (a tuple), or
+    None for clean data of `kind`.
 
     Each effect gets the trial kind where it is observable, with an effect size a real vessel
     could have (the effect object's ``hide``). noise is the sensor noise std as a fraction of the
@@ -42,15 +65,20 @@ def demo_trial(effect: str | None, kind: str | None = None, noise: float = 0.01,
     """
     rng = np.random.default_rng(seed)
     A = amplitude
+    names = (effect,) if isinstance(effect, str) else tuple(effect or ())
     kinds = demo_effects()
-    kind = kind or (_design()[effect] if effect else "decay")
+    kind = kind or (_design()[names[0]] if names else "decay")
     if kind not in kinds:
         raise ValueError(f"demo kind '{kind}': one of {', '.join(kinds)}")
-    if effect is not None and effect not in kinds[kind]:
-        raise ValueError(f"demo: '{effect}' is not hidden in a '{kind}' trial "
-                         f"(there: {', '.join(sorted(kinds[kind]))})")
-    hid = _hiding(effect, kind, A)
-    name = f"hidden_{effect or 'none'}_{kind}"
+    for e in names:
+        if e not in kinds[kind]:
+            raise ValueError(f"demo: '{e}' is not hidden in a '{kind}' trial "
+                             f"(there: {', '.join(sorted(kinds[kind]))})")
+    if len(names) > 1:
+        hid = merge_hidings(names, [_hiding(e, kind, A) for e in names])
+    else:
+        hid = _hiding(names[0] if names else None, kind, A)
+    name = f"hidden_{'+'.join(names) or 'none'}_{kind}"
 
     def noisy(y: np.ndarray) -> np.ndarray:
         scale = np.max(np.abs(y), axis=0)

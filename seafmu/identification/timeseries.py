@@ -21,7 +21,7 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.signal import savgol_filter
 
-from seafmu.identification import effects
+from seafmu.identification import effects, ts_kernels
 from seafmu.identification.fitting import (
     FitResult,
     aic_bic,
@@ -31,6 +31,7 @@ from seafmu.identification.fitting import (
     covariance_from_jacobian,
     nonidentifiable_pairs,
     nrmse,
+    unidentifiable_warnings,
     whiteness_test,
 )
 from seafmu.identification.trial import Run, Trial, TrialError
@@ -153,91 +154,41 @@ def generalised_force(v: dict[str, float], model: TSModel, t: np.ndarray, u: np.
 
 
 def _forcing(t: np.ndarray, tau: np.ndarray, interp: bool, scale: float, offset: float) -> tuple[
-        list[float], list[float], list[float], list[float]]:
+        np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Step sizes and the per-unit-inertia force at the start, middle and end of every RK4 step."""
-    hs = np.diff(t).tolist()
-    f = tau * scale + offset
-    c1 = f[:-1]
+    hs = np.ascontiguousarray(np.diff(t), dtype=float)
+    f = np.asarray(tau, dtype=float) * scale + offset
+    c1 = np.ascontiguousarray(f[:-1])
     if interp:
-        c4 = f[1:]
-        return hs, c1.tolist(), (0.5 * (c1 + c4)).tolist(), c4.tolist()
-    c = c1.tolist()
-    return hs, c, c, c
+        c4 = np.ascontiguousarray(f[1:])
+        return hs, c1, 0.5 * (c1 + c4), c4
+    return hs, c1, c1, c1
 
 
-def _sim_first(t: np.ndarray, tau: np.ndarray, interp: bool, v: dict[str, float], x0: float) -> list[float]:
-    """M v_dot = tau + F_0 - d_L w - d_Q w|w| - f_c sign(v), w = v - v_c (RK4, one step per sample)."""
-    # Plain Python floats throughout: a numpy scalar would make every operation ~10x slower.
+def _sim_first(t: np.ndarray, tau: np.ndarray, interp: bool, v: dict[str, float], x0: float) -> np.ndarray:
+    """M v_dot = tau + F_0 - d_L w - d_Q w|w|^(p_v-1) - f_c sign(v), w = v - v_c (RK4, one step per
+    sample; compiled, ``ts_kernels.first_rk4``)."""
     iM = 1.0 / float(v["M"] + v["m_a"])
     a, b = float(v["d_L"]) * iM, float(v["d_Q"]) * iM
     fm, vc = float(v["f_c"]) * iM, float(v["v_c"])
+    pq = float(v.get("p_v", 2.0))
     hs, C1, C2, C4 = _forcing(t, tau, interp, iM, float(v["F_0"]) * iM)
     extra = _state_force(v, "first")
-    if extra is not None:
-        return _sim_first_general(hs, C1, C2, C4, (a, b, fm, vc, iM, float(v.get("eps", 0.0))), extra, x0)
-    out = [0.0] * (len(hs) + 1)
-    x = float(x0)
-    out[0] = x
-    i = 0
-    if fm == 0.0:
-        for h, c1, c2, c4 in zip(hs, C1, C2, C4, strict=True):
-            w = x - vc
-            k1 = c1 - w * (a + b * abs(w))
-            w = x + 0.5 * h * k1 - vc
-            k2 = c2 - w * (a + b * abs(w))
-            w = x + 0.5 * h * k2 - vc
-            k3 = c2 - w * (a + b * abs(w))
-            w = x + h * k3 - vc
-            k4 = c4 - w * (a + b * abs(w))
-            x += h * (k1 + 2.0 * (k2 + k3) + k4) / 6.0
-            i += 1
-            out[i] = x
-        return out
     eps = float(v.get("eps", 0.0))
-    if eps > 0.0:
+    if extra is not None:
+        return np.array(_sim_first_general(hs.tolist(), C1.tolist(), C2.tolist(), C4.tolist(),
+                                           (a, b, fm, vc, iM, eps, pq), extra, x0))
+    if hs.size == 0:
+        return np.array([float(x0)])
+    if fm == 0.0:
+        mode, ie = ts_kernels.MODE_NONE, 0.0
+    elif eps > 0.0:
         # Regularised friction f_c tanh(v/eps): smooth in the parameters, which output-error fitting
         # needs; eps is kept above f_c h / 2 so that RK4 stays stable in the steep part.
-        ie = 1.0 / max(eps, 0.5 * fm * max(hs))
-        th = math.tanh
-        for h, c1, c2, c4 in zip(hs, C1, C2, C4, strict=True):
-            w = x - vc
-            k1 = c1 - w * (a + b * abs(w)) - fm * th(x * ie)
-            xx = x + 0.5 * h * k1
-            w = xx - vc
-            k2 = c2 - w * (a + b * abs(w)) - fm * th(xx * ie)
-            xx = x + 0.5 * h * k2
-            w = xx - vc
-            k3 = c2 - w * (a + b * abs(w)) - fm * th(xx * ie)
-            xx = x + h * k3
-            w = xx - vc
-            k4 = c4 - w * (a + b * abs(w)) - fm * th(xx * ie)
-            x += h * (k1 + 2.0 * (k2 + k3) + k4) / 6.0
-            i += 1
-            out[i] = x
-        return out
-    # Exact stick-slip (used to generate test data): sign(v), and the body stays stopped while
-    # the other forces are below the friction force.
-    fs_damp = a * vc + b * vc * abs(vc)  # damping force at v = 0 (non-zero in a current)
-    for h, c1, c2, c4 in zip(hs, C1, C2, C4, strict=True):
-        w = x - vc
-        k1 = c1 - w * (a + b * abs(w)) - (fm if x > 0 else (-fm if x < 0 else 0.0))
-        xx = x + 0.5 * h * k1
-        w = xx - vc
-        k2 = c2 - w * (a + b * abs(w)) - (fm if xx > 0 else (-fm if xx < 0 else 0.0))
-        xx = x + 0.5 * h * k2
-        w = xx - vc
-        k3 = c2 - w * (a + b * abs(w)) - (fm if xx > 0 else (-fm if xx < 0 else 0.0))
-        xx = x + h * k3
-        w = xx - vc
-        k4 = c4 - w * (a + b * abs(w)) - (fm if xx > 0 else (-fm if xx < 0 else 0.0))
-        xn = x + h * (k1 + 2.0 * (k2 + k3) + k4) / 6.0
-        if (x == 0.0 or x * xn <= 0.0 or x * (x + h * k1) <= 0.0) and abs(c4 + fs_damp) <= fm:
-            # The body stops within this step; friction holds it unless the other forces overcome it.
-            xn = 0.0
-        x = xn
-        i += 1
-        out[i] = x
-    return out
+        mode, ie = ts_kernels.MODE_SMOOTH, 1.0 / max(eps, 0.5 * fm * float(np.max(hs)))
+    else:  # exact stick-slip (used to generate test data)
+        mode, ie = ts_kernels.MODE_EXACT, 0.0
+    return ts_kernels.first_rk4(hs, C1, C2, C4, a, b, pq, fm, vc, ie, mode, float(x0))
 
 
 StateForce = Callable[[float, float], float]
@@ -258,7 +209,7 @@ def _sim_first_general(hs: list[float], C1: list[float], C2: list[float], C4: li
                        coef: tuple[float, ...], extra: StateForce, x0: float) -> list[float]:
     """The 1st-order loop with an effect's extra state force f(0, w) (e.g. a power-law drag):
     the same RK4 and friction laws as ``_sim_first``, with a call per stage (slower)."""
-    a, b, fm, vc, iM, eps = coef
+    a, b, fm, vc, iM, eps, pq = coef
     exact = fm > 0.0 and eps <= 0.0
     ie = 1.0 / max(eps, 0.5 * fm * max(hs)) if fm > 0.0 and not exact else 0.0
     th = math.tanh
@@ -266,7 +217,7 @@ def _sim_first_general(hs: list[float], C1: list[float], C2: list[float], C4: li
     def acc(c: float, s: float) -> float:
         w = s - vc
         fr = (fm if s > 0 else (-fm if s < 0 else 0.0)) if exact else (fm * th(s * ie) if fm else 0.0)
-        return c - w * (a + b * abs(w)) - fr - iM * extra(0.0, w)
+        return c - w * (a + b * abs(w) ** (pq - 1.0)) - fr - iM * extra(0.0, w)
 
     out = [0.0] * (len(hs) + 1)
     x = float(x0)
@@ -280,7 +231,7 @@ def _sim_first_general(hs: list[float], C1: list[float], C2: list[float], C4: li
             k4 = acc(c4, x + h * k3)
             xn = x + h * (k1 + 2.0 * (k2 + k3) + k4) / 6.0
             if exact and (x == 0.0 or x * xn <= 0.0 or x * (x + h * k1) <= 0.0) and abs(
-                    c4 - (-vc) * (a + b * abs(vc)) - iM * extra(0.0, -vc)) <= fm:
+                    c4 - (-vc) * (a + b * abs(vc) ** (pq - 1.0)) - iM * extra(0.0, -vc)) <= fm:
                 xn = 0.0  # stuck: the other forces at rest are below the friction force
             x = xn
             i += 1
@@ -291,75 +242,49 @@ def _sim_first_general(hs: list[float], C1: list[float], C2: list[float], C4: li
 
 
 def _sim_second(t: np.ndarray, tau: np.ndarray, interp: bool, v: dict[str, float], restoring: str,
-                x0: float, xd0: float) -> list[float]:
-    """M x_dd = tau + F_0 - c r(x) - c3 x^3 - d_L x_d - d_Q x_d|x_d| - f_c sign(x_d), r = x or sin x."""
+                x0: float, xd0: float) -> np.ndarray:
+    """M x_dd = tau + F_0 - c r(x) - c3 x^3 - d_L x_d - d_Q x_d|x_d|^(p_v-1) - f_c sign(x_d), r = x or
+    sin x (compiled, ``ts_kernels.second_rk4``)."""
     iM = 1.0 / float(v["M"] + v["m_a"])
     c, c3 = float(v["c"]) * iM, float(v["c3"]) * iM
     a, b = float(v["d_L"]) * iM, float(v["d_Q"]) * iM
     fm = float(v["f_c"]) * iM
+    pq = float(v.get("p_v", 2.0))
     sl = restoring == "sin"
-    sin = math.sin
-    hs, E1, E2, E4 = _forcing(t, tau, interp, iM, v["F_0"] * iM)
-    n = len(hs) + 1
-    out = [0.0] * n
-    x, xd = float(x0), float(xd0)
-    out[0] = x
-    i = 0
+    hs, E1, E2, E4 = _forcing(t, tau, interp, iM, float(v["F_0"]) * iM)
+    if hs.size == 0:
+        return np.array([float(x0)])
     eps = float(v.get("eps", 0.0))
     smooth = eps > 0.0 and fm > 0.0
-    ie = 1.0 / max(eps, 0.5 * fm * max(hs)) if smooth else 0.0
-    th = math.tanh
-
-    def fric(w: float) -> float:
-        if smooth:
-            return fm * th(w * ie)
-        return fm if w > 0 else (-fm if w < 0 else 0.0)
-
-    if fm == 0.0:
-        fric = _zero
+    ie = 1.0 / max(eps, 0.5 * fm * float(np.max(hs))) if smooth else 0.0
     extra = _state_force(v, "second")
     if extra is not None:  # an effect's state force (a call per stage: slower)
-        def fric_extra(pos: float, w: float) -> float:
-            return fric(w) + iM * extra(pos, w)
+        th = math.tanh
 
-        return _sim_second_general(hs, E1, E2, E4, (c, c3, a, b, fm), sl, smooth, fric_extra, x0, xd0)
-    try:
-        for h, e1, e2, e4 in zip(hs, E1, E2, E4, strict=True):
-            r = sin(x) if sl else x
-            a1 = e1 - c * r - c3 * x * x * x - xd * (a + b * abs(xd)) - fric(xd)
-            x2, v2 = x + 0.5 * h * xd, xd + 0.5 * h * a1
-            r = sin(x2) if sl else x2
-            a2 = e2 - c * r - c3 * x2 * x2 * x2 - v2 * (a + b * abs(v2)) - fric(v2)
-            x3, v3 = x + 0.5 * h * v2, xd + 0.5 * h * a2
-            r = sin(x3) if sl else x3
-            a3 = e2 - c * r - c3 * x3 * x3 * x3 - v3 * (a + b * abs(v3)) - fric(v3)
-            x4, v4 = x + h * v3, xd + h * a3
-            r = sin(x4) if sl else x4
-            a4 = e4 - c * r - c3 * x4 * x4 * x4 - v4 * (a + b * abs(v4)) - fric(v4)
-            xn = x + h * (xd + 2.0 * (v2 + v3) + v4) / 6.0
-            vn = xd + h * (a1 + 2.0 * (a2 + a3) + a4) / 6.0
-            if fm > 0.0 and not smooth and (xd == 0.0 or xd * vn <= 0.0 or xd * (xd + h * a1) <= 0.0):
-                r = sin(xn) if sl else xn
-                if abs(e4 - c * r - c3 * xn * xn * xn) <= fm:
-                    vn = 0.0  # stuck: friction exceeds the restoring force at rest
-            x, xd = xn, vn
-            i += 1
-            out[i] = x
-    except (ValueError, OverflowError):  # diverged: sin(inf), or a cube out of range
-        return out[: i + 1] + [math.nan] * (n - i - 1)
-    return out
+        def force(pos: float, w: float) -> float:
+            if fm == 0.0:
+                fr = 0.0
+            elif smooth:
+                fr = fm * th(w * ie)
+            else:
+                fr = fm if w > 0 else (-fm if w < 0 else 0.0)
+            return fr + iM * extra(pos, w)
+
+        return np.array(_sim_second_general(hs.tolist(), E1.tolist(), E2.tolist(), E4.tolist(),
+                                            (c, c3, a, b, fm, pq), sl, smooth, force, x0, xd0))
+    return ts_kernels.second_rk4(hs, E1, E2, E4, c, c3, a, b, pq, fm, sl, smooth, ie, float(x0), float(xd0))
 
 
 def _sim_second_general(hs: list[float], E1: list[float], E2: list[float], E4: list[float],
                         coef: tuple[float, ...], sl: bool, smooth: bool, force: StateForce, x0: float,
                         xd0: float) -> list[float]:
     """``_sim_second``'s loop with friction and the effects' state forces as one call force(x, x_d)."""
-    c, c3, a, b, fm = coef
+    c, c3, a, b, fm, pq = coef
     sin = math.sin
 
     def acc(e: float, p: float, w: float) -> float:
         r = sin(p) if sl else p
-        return e - c * r - c3 * p * p * p - w * (a + b * abs(w)) - force(p, w)
+        return e - c * r - c3 * p * p * p - w * (a + b * abs(w) ** (pq - 1.0)) - force(p, w)
 
     n = len(hs) + 1
     out = [0.0] * n
@@ -387,10 +312,6 @@ def _sim_second_general(hs: list[float], E1: list[float], E2: list[float], E4: l
     except (ValueError, OverflowError, ZeroDivisionError):  # diverged
         return out[: i + 1] + [math.nan] * (n - i - 1)
     return out
-
-
-def _zero(w: float) -> float:
-    return 0.0
 
 
 def _expm_small(A: np.ndarray) -> np.ndarray:
@@ -531,6 +452,9 @@ def extend(model: TSModel, effect: str, trial: Trial | None = None) -> TSModel:
     assert obj is not None, effect
     params = [p for p in obj.params if p not in model.free]
     values = {**obj.neutral_values(), **model.values}
+    absent = obj.absent_values(trial) if trial is not None else {}
+    for p in obj.params:  # a parameter with no neutral value starts where the effect is absent
+        values.setdefault(p, absent.get(p, obj.absent))
     if trial is not None:
         values.update(obj.fixed_values(trial))
     return model.copy(free=[*model.free, *params], effect=effect, values=values)
@@ -735,8 +659,10 @@ def _span(preps: list[_Prep]) -> float:
 
 
 def fit_timeseries(trial: Trial, model: TSModel, start: dict[str, float] | None = None,
-                   start_ics: list[tuple[float, ...]] | None = None, sp: Split | None = None) -> FitResult:
-    """Output-error fit of a time-series model; held-out error on the split's validation data."""
+                   start_ics: list[tuple[float, ...]] | None = None, sp: Split | None = None,
+                   nfev_per_parameter: int = 60) -> FitResult:
+    """Output-error fit of a time-series model; held-out error on the split's validation data
+    (at most ``nfev_per_parameter`` evaluations per parameter, initial states included)."""
     # Over 80 lines: start values, bounds, the residual closure, the statistics and the held-out
     # predictions all share one parameter layout (free parameters, then initial conditions per run);
     # the FitResult is built field by field.
@@ -773,7 +699,7 @@ def fit_timeseries(trial: Trial, model: TSModel, start: dict[str, float] | None 
     with np.errstate(all="ignore"):
         try:
             sol = least_squares(residual, x0, bounds=(lo, hi), method="trf", x_scale="jac",
-                                ftol=1e-9, xtol=1e-9, gtol=1e-10, max_nfev=60 * (len(x0) + 1))
+                                ftol=1e-9, xtol=1e-9, gtol=1e-10, max_nfev=nfev_per_parameter * (len(x0) + 1))
         except ValueError as exc:  # scipy: "array must not contain infs or NaNs" (a Jacobian overflowed)
             if "inf" not in str(exc) and "NaN" not in str(exc):
                 raise
@@ -827,7 +753,8 @@ def fit_timeseries(trial: Trial, model: TSModel, start: dict[str, float] | None 
 
     rss = float(np.sum(resid**2))
     aic, bic = aic_bic(rss, n, len(theta))
-    warnings = sanity(model, vals, trial, sp) + correlation_warnings(list(model.free), corr)
+    warnings = sanity(model, vals, trial, sp) + correlation_warnings(list(model.free), corr) + \
+        unidentifiable_warnings(ci, list(model.free))
     if nr_val > 1.0:
         warnings.append(f"held-out NRMSE {nr_val:.3g} > 1: the model predicts the held-out data worse than "
                         "their mean (over-fitted, or too little data)")
@@ -940,20 +867,57 @@ def sanity(model: TSModel, v: dict[str, float], trial: Trial, sp: Split | None =
 
 def fit_effect(trial: Trial, base: FitResult, effect: str, sp: Split | None = None) -> FitResult:
     """Refit the baseline extended by one catalogue effect, from the baseline's parameters."""
-    bmodel: TSModel = base.extras["model"]
-    model = extend(bmodel, effect, trial)
-    sp = sp or base.extras["split"]
+    return fit_effects(trial, base, (effect,), sp)
+
+
+def combined_model(trial: Trial, base: FitResult, names: tuple[str, ...]) -> tuple[TSModel, dict[str, float],
+                                                                                    dict[str, float], bool]:
+    """The baseline extended by ``names``: model, start values (the baseline's, caps set inactive),
+    the effects' absent values, and whether all may start where they are absent."""
+    model = base.extras["model"]
+    for name in names:
+        model = extend(model, name, trial)
+    if len(names) > 1:
+        model = model.copy(effect="+".join(names))
     vals = dict(base.extras["values"])
-    ics = base.extras["initial_states"]
-    obj = effects.get(effect)
-    assert obj is not None, effect
-    null = obj.absent_values(trial)
-    if not obj.start_at_absent:  # e.g. the cap of saturation: no gradient where it is inactive
-        vals.update(null)
-    grid = effect_grid(effect, model, vals, sp.fit)
+    null: dict[str, float] = {}
+    at_absent = True
+    for name in names:
+        obj = effects.get(name)
+        assert obj is not None, name
+        null.update(obj.absent_values(trial))
+        if not obj.start_at_absent:  # e.g. the cap of saturation: no gradient where it is inactive
+            vals.update(obj.absent_values(trial))
+            at_absent = False
+    return model, vals, null, at_absent
+
+
+Start = tuple[dict[str, float], list[tuple[float, ...]]]  # parameter values and initial states
+
+
+def screen(trial: Trial, base: FitResult, names: tuple[str, ...], seeds: list[Start],
+           sp: Split | None = None) -> tuple[Start | None, float]:
+    """The best start of a combined model and its cost (RSS on the fitting runs), from ``seeds``
+    (values with their fit's initial states) and each effect's start grid (two points each, over the
+    seeds): simulations only, no fit. Used to rank combinations before fitting any."""
+    model, vals, null, at_absent = combined_model(trial, base, names)
+    sp = sp or base.extras["split"]
+    ics = list(base.extras["initial_states"])
+    seeded = [({k: v for k, v in s.items() if k in model.free}, list(i)) for s, i in seeds] or [({}, ics)]
+    starts = list(seeded)
+    for name in names:
+        for g in effect_grid(name, model, vals, sp.fit)[:2]:
+            starts += [({**s, **g}, i) for s, i in seeded]
+    if at_absent:
+        starts.append((null, ics))
+    return _best_start(model, vals, starts, sp)
+
+
+def _best_start(model: TSModel, vals: dict[str, float], starts: list[Start], sp: Split) -> tuple[
+        Start | None, float]:
     best, best_cost = None, math.inf
-    starts = [*grid, null] if obj.start_at_absent else grid
-    for g in starts:
+    for start in starts:
+        g, ics = start
         trial_vals = {**vals, **g}
         cost = 0.0
         with np.errstate(all="ignore"):
@@ -961,16 +925,44 @@ def fit_effect(trial: Trial, base: FitResult, effect: str, sp: Split | None = No
                 r = _outputs(model, trial_vals, p, ic) - p.y
                 cost += float(np.sum(r**2))
         if np.isfinite(cost) and cost < best_cost:
-            best, best_cost = g, cost
-    fit = fit_timeseries(trial, model, start={**vals, **(best or null)}, start_ics=list(ics), sp=sp)
-    if fit.extras["rss"] > base.extras["rss"] * (1 + 1e-6) and best is not null and obj.start_at_absent:
+            best, best_cost = start, cost
+    return best, best_cost
+
+
+def fit_effects(trial: Trial, base: FitResult, names: tuple[str, ...], sp: Split | None = None,
+                seeds: list[Start] | None = None) -> FitResult:
+    """Refit the baseline extended by one or several catalogue effects.
+
+    One effect starts from the best of its start grid and its "absent" values (by the cost of the
+    simulation); several from the best of ``seeds`` (e.g. the single-effect fits' values, reused)
+    and the effects' start grids (``screen``). An extension contains the baseline, so a fit worse
+    than it is a local minimum and is restarted from the baseline itself.
+    """
+    model, vals, null, at_absent = combined_model(trial, base, names)
+    sp = sp or base.extras["split"]
+    ics = list(base.extras["initial_states"])
+    if len(names) == 1:
+        grid = effect_grid(names[0], model, vals, sp.fit)
+        chosen, _ = _best_start(model, vals, [(g, ics) for g in ([*grid, null] if at_absent else grid)], sp)
+    else:
+        chosen, _ = screen(trial, base, names, seeds or [], sp)
+    best, start_ics = chosen if chosen is not None else (None, ics)
+    fit = fit_timeseries(trial, model, start={**vals, **(best or null)}, start_ics=list(start_ics), sp=sp)
+    if fit.extras["rss"] > base.extras["rss"] * (1 + 1e-6) and best is not null and at_absent:
         # The extension contains the baseline, so it must fit at least as well: a local minimum.
         # Restart from the baseline itself (effect absent) and keep the better of the two.
         again = fit_timeseries(trial, model, start={**vals, **null}, start_ics=list(ics), sp=sp)
         if again.extras["rss"] < fit.extras["rss"]:
             fit = again
-    if obj.regularised is not None and fit.ci95[obj.regularised[0]][0] > 0:
-        fit = _sharpen(trial, fit, sp, obj.regularised[1])
+    for name in names:
+        obj = effects.get(name)
+        # A regularised law (friction's tanh) is sharpened only where it is significant and the
+        # smooth fit already predicts the held-out data better than the baseline (the
+        # continuation costs several refits).
+        if obj is not None and obj.regularised is not None and fit.ci95[obj.regularised[0]][0] > 0 \
+                and fit.nrmse_validation < base.nrmse_validation:
+            fit = _sharpen(trial, fit, sp, obj.regularised[1])
+    fit.extras["effects"] = tuple(names)
     return fit
 
 
@@ -985,8 +977,9 @@ def _sharpen(trial: Trial, fit: FitResult, sp: Split, width: str) -> FitResult:
     for k in (3.0, 10.0):
         m = fit.extras["model"]
         sharper = m.copy(values={**m.values, width: m.values[width] / k})
+        # a refinement from the previous optimum: a third of a cold fit's evaluation budget
         nxt = fit_timeseries(trial, sharper, start=fit.extras["values"],
-                             start_ics=fit.extras["initial_states"], sp=sp)
+                             start_ics=fit.extras["initial_states"], sp=sp, nfev_per_parameter=20)
         if not nxt.extras["rss"] <= fit.extras["rss"]:
             break
         fit = nxt

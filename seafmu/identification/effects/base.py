@@ -111,6 +111,11 @@ class CatalogueEffect(ABC):
     neutral: ClassVar[dict[str, float]] = {}
     # Where the effect acts on the input chain (None: not at all); lower acts first.
     input_stage: ClassVar[float | None] = None
+    # A family containing other effects' shapes (a power law): the cause only where it beats every
+    # accepted specific effect by the acceptance rule's margins (diagnosis.choose).
+    general: ClassVar[bool] = False
+    # Effects modelling the same thing another way: never fitted together (e.g. two thrust laws).
+    excludes: ClassVar[tuple[str, ...]] = ()
     # (parameter, width) of a regularised law a time-series fit sharpens by continuation.
     regularised: ClassVar[tuple[str, str] | None] = None
     # Synthetic trials: the demo kinds it is hidden in (first: default), the plant trial kind and
@@ -151,6 +156,12 @@ class CatalogueEffect(ABC):
     @abstractmethod
     def evidence(self, params: dict[str, float], trial: Trial) -> str:
         """The sentence that names the effect with its fitted parameters."""
+
+    def contradiction(self, params: dict[str, float], trial: Trial, fit: Any, noise: float) -> str | None:
+        """What in the measured data contradicts the fitted effect's claim beyond the noise (None:
+        nothing), e.g. thrust measured inside a claimed deadband. ``fit`` is the extended fit
+        (``fitting.FitResult``), ``noise`` the measurement noise (the best candidate's residual RMS)."""
+        return None
 
     # -- the model terms (each returns None or its input unchanged where the effect is absent) --
 

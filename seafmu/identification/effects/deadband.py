@@ -51,6 +51,22 @@ class Deadband(CatalogueEffect):
         return (f"the thruster gives no thrust below {fmt(params.get('n_0', 0))} {unit('n_0', trial)} "
                 "(deadband)")
 
+    def contradiction(self, params: dict[str, float], trial: Trial, fit: Any, noise: float) -> str | None:
+        """Thrust measured inside the claimed band, beyond 3 x the noise (a table's points)."""
+        n0 = params.get("n_0", 0.0)
+        if trial.kind != "static" or n0 <= 0 or not noise > 0:
+            return None
+        x, y = np.asarray(fit.extras["x"]), np.asarray(fit.extras["y"])
+        inside = (np.abs(x) < n0) & (x != 0)
+        dev = np.abs(y - params.get("F_0", 0.0))
+        bad = inside & (dev > 3.0 * noise)
+        if not np.any(bad):
+            return None
+        i = int(np.argmax(np.where(bad, dev, -1.0)))
+        u = unit("n_0", trial)
+        return (f"a deadband below {fmt(n0)} {u} contradicts the thrust of {fmt(float(y[i]))} N measured at "
+                f"{fmt(float(x[i]))} {u} ({float(dev[i]) / noise:.1f} x the noise {fmt(noise)} N)")
+
     def static_input(self, x: np.ndarray, v: dict[str, float]) -> np.ndarray:
         n0 = v.get("n_0", 0.0)
         return np.sign(x) * np.maximum(np.abs(x) - n0, 0.0) if n0 > 0 else x

@@ -59,6 +59,17 @@ class Saturation(CatalogueEffect):
         return (f"the command is capped at {fmt(params.get('u_sat', 0))} {unit('u_sat', trial)} (thrust or "
                 f"shaft-speed saturation)")
 
+    def contradiction(self, params: dict[str, float], trial: Trial, fit: Any, noise: float) -> str | None:
+        """A cap at or above every command: no measurement shows it (its value is not identifiable)."""
+        from seafmu.identification.catalogue import input_scale
+
+        cap, top = params.get("u_sat", math.inf), input_scale(trial)
+        if top > 0 and cap >= top * (1.0 - 1e-6):
+            u = unit("u_sat", trial)
+            return (f"the cap of {fmt(cap)} {u} is above every command (largest {fmt(top)} {u}): no "
+                    "measurement shows a saturation")
+        return None
+
     def static_input(self, x: np.ndarray, v: dict[str, float]) -> np.ndarray:
         us = v.get("u_sat", math.inf)
         return np.clip(x, -us, us) if math.isfinite(us) else x
