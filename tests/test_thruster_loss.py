@@ -39,6 +39,7 @@ from seafmu.identification.replay import simulate_log
 from seafmu.identification.trial import csv_trial, load_trial
 from seafmu.identification.writeback import efficiency_updates, write_scenario_parameters
 from seafmu.master import run
+from seafmu.results import write_csv
 from seafmu.scenario import load_scenario
 
 REPO = Path(__file__).resolve().parents[1]
@@ -121,6 +122,34 @@ def test_efficiency_written_back_and_replay_improves(tmp_path: Path) -> None:
     before, after = _replay_error(data, "minerva2", np.ones(7)), _replay_error(data, "minerva2", new)
     print(f"replay NRMSE {before:.4f} -> {after:.4f}")
     assert after < 0.7 * before
+
+
+# -- closed loop in process: `seafmu run` of the GNC FMUs with a weak thruster, its results.csv ----
+
+@pytest.mark.parametrize(("lost", "efficiency"), [(5, 0.8), (2, 0.6), (None, 1.0)])
+def test_closed_loop_results_csv(tmp_path: Path, built_fmus: dict, lost: int | None,
+                                 efficiency: float) -> None:
+    """The short DP maneuver of the hardware test, run by seafmu's master with the plant FMU
+    carrying the loss (scenario parameter thruster_efficiency_i); results.csv (true states, no
+    sensor noise, thrust from the shaft speed) is diagnosed: the thruster is named, a clean run
+    names none (a noise-free log makes every deviation "significant": losses under 5 % are not
+    reported)."""
+    sim, _ = _hil_scenarios(tmp_path)
+    doc = yaml.safe_load(sim.read_text())
+    if lost is not None:
+        doc["fmus"]["plant"]["parameters"][f"thruster_efficiency_{lost}"] = efficiency
+    sim.write_text(yaml.safe_dump(doc, sort_keys=False))
+    res = run(load_scenario(sim), progress=False)
+    write_csv(res, tmp_path / "results.csv")
+    d = diagnose(csv_trial(tmp_path / "results.csv", "minerva2"))
+    if lost is None:
+        assert d.effect == "none", d.evidence
+        return
+    assert d.effect == "thruster_loss", d.evidence
+    thruster, eta, ci = _located(d)
+    print(f"seafmu run, thruster {lost} at {efficiency}: thruster {thruster}, eta {eta:.4f} "
+          f"CI [{ci[0]:.4f}, {ci[1]:.4f}], {d.seconds:.1f} s")
+    assert thruster == lost and eta == pytest.approx(efficiency, abs=0.05)
 
 
 # -- across processes: the emulator with a fouled thruster, the GNC FMUs, the recording diagnosed --

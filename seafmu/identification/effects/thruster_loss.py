@@ -49,6 +49,10 @@ class ThrusterLoss(CatalogueEffect):
                      "recordings): eta_T[i] of the located thruster i")
     position = 15
     absent = 1.0  # all of the nominal thrust acts
+    # A loss below 5 % of the nominal thrust is within what a thrust law (a bollard-pull
+    # coefficient) is known to: the fit reports no loss then, however narrow its interval
+    # (a noise-free log makes every deviation "significant").
+    min_effect: ClassVar[float] = 0.05
     maneuver = True
     units: ClassVar[dict[str, tuple[str, bool]]] = {PARAM: ("ratio", False)}
 

@@ -199,7 +199,7 @@ def _output_error(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | None, 
     screened over its variants (``_screen_variants``); the ``LOCATE_KEEP`` most promising are
     fitted and the one with the lowest cost is kept (the variants have the same number of
     parameters, so also the lowest AIC). ``info["variants"]`` lists every variant, best first:
-    its screening score and, where fitted, its value, CI, cost and AIC.
+    its screening cost and, where fitted, its value, CI, cost and AIC.
     """
     eff = maneuver_effect(effect) if effect is not None else None
     variants = getattr(eff, "maneuver_variants", None)
@@ -213,8 +213,8 @@ def _output_error(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | None, 
         raise TrialError("too few samples for an output-error fit")
     cands = variants(prep.thrust.shape[1])
     screen = _screen_variants(vessel, prep, setup, ls, plant, base, start, cands)
-    scores, starts = screen if screen is not None else ([0.0] * len(cands), [{} for _ in cands])
-    order = sorted(range(len(cands)), key=lambda i: -scores[i])
+    scores, starts = screen if screen is not None else ([np.inf] * len(cands), [{} for _ in cands])
+    order = sorted(range(len(cands)), key=lambda i: scores[i])
     keep = LOCATE_KEEP if screen is not None else len(cands)
     fits = []
     for i in order[:keep]:
@@ -230,12 +230,18 @@ def _output_error(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | None, 
         k = names[-1]  # the variant's own parameter comes last
         # AIC from the fitting cost (sum of squared normalised residuals) and the parameter count
         aic = n_res * float(np.log(max(2.0 * info["oe_cost"], 1e-300) / n_res)) + 2.0 * len(names)
-        rows.append({"param": k, "screen_score": scores[i], "value": float(p[-1]),
+        rows.append({"param": k, "screen_cost": _finite(scores[i]), "value": float(p[-1]),
                      "ci95": [float(ci[k][0]), float(ci[k][1])], "cost": info["oe_cost"], "aic": aic,
                      "delta_aic": aic - (rows[0]["aic"] if rows else aic)})
-    rows += [{"param": cands[i].maneuver_params(vessel.dof)[-1], "screen_score": scores[i]}
+    rows += [{"param": cands[i].maneuver_params(vessel.dof)[-1], "screen_cost": _finite(scores[i])}
              for i in order[keep:]]
     best[9]["variants"] = rows
+    floor = float(getattr(eff, "min_effect", 0.0))
+    value = float(best[4][-1])
+    if abs(value - eff.absent) < floor:  # the best variant's effect is below what the model is known to
+        raise TrialError(f"effect '{effect}': the best variant ({rows[0]['param']} = {value:.4g}) differs "
+                         f"from {eff.absent:g} by less than {floor:g}, the accuracy its model is known to: "
+                         "not reported")
     return best
 
 
@@ -244,10 +250,20 @@ def _output_error(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | None, 
 NOISE_MAX = 0.5
 
 
-def excited_dofs(nu: np.ndarray) -> list[int]:
-    """The DOFs whose measured velocity moves clearly above its sensor noise (``NOISE_MAX``)."""
-    ratios = noise_ratios(nu)
-    return [j for j in range(nu.shape[1]) if ratios[j] <= NOISE_MAX]
+def excited_dofs(nu: np.ndarray, vessel: VesselSpec) -> list[int]:
+    """The DOFs whose measured velocity moves clearly above its sensor noise (``NOISE_MAX``): the
+    noise seen in the log, and at least the vessel file's sensor noise (a noise-free simulated log
+    is judged as its vessel would measure it)."""
+    d = nu.shape[1]
+    std = {c: float(s) for sen in vessel.sensors for c, s in zip(sen.channels, sen.noise_std, strict=True)}
+    floor = np.array([std.get(n, 0.0) for n in NU_NAMES[d]])
+    spread = np.maximum(nu.std(axis=0), 1e-300)
+    ratios = np.maximum(noise_ratios(nu), floor / spread)
+    return [j for j in range(d) if ratios[j] <= NOISE_MAX]
+
+
+def _finite(x: float) -> float | None:
+    return float(x) if np.isfinite(x) else None
 
 
 # How many of an effect's variants (e.g. which thruster is lost) are fitted after the screening.
@@ -257,11 +273,12 @@ LOCATE_KEEP = 3
 def _screen_variants(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup, ls: _LSResult,
                      plant: dict[str, np.ndarray], base: str, start: dict[str, float] | None,
                      cands: list[CatalogueEffect]) -> tuple[list[float], list[dict[str, float]]] | None:
-    """Each variant's score: the drop of the fitting cost after one joint Gauss-Newton step in the
-    damping diagonals and its own parameter, from the start model (the baseline's damping; the
-    vessel file's where that diverges) with the effect absent. Two batched simulations: the start
-    model with each damping diagonal and each variant's parameter moved (the Jacobian), then every
-    variant at its step (the cost). None when no start model can be simulated (fit them all)."""
+    """Each variant's screening cost: the fitting cost after one joint Gauss-Newton step in the
+    damping diagonals and its own parameter, from the start model (the baseline's damping) and from
+    the vessel file's, whichever step ends lower (a baseline fitted without the effect may sit in
+    another basin than the true model). Per start model two batched simulations: the model with each
+    damping diagonal and each variant's parameter moved (the Jacobian), then every variant at its
+    step. Also the step of each variant, where its fit starts. None when nothing can be simulated."""
     d = vessel.dof
     Ms, DLs, DQs = (_sym(ls.M), ls.D_L.copy(), ls.D_Q.copy()) if base == "ls" else (
         plant["M"].copy(), plant["D_L"].copy(), plant["D_Q"].copy())
@@ -270,31 +287,43 @@ def _screen_variants(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup, ls: 
         DLs[i, i] = start.get(f"D_L[{i},{i}]", ls.D_L[i, i] if np.isfinite(ls.D_L[i, i]) else DLs[i, i])
         DQs[i, i] = start.get(f"D_Q[{i},{i}]", ls.D_Q[i, i] if ls.D_Q[i, i] > 0 else DQs[i, i])
         Ms[i, i] = start.get(f"M[{i},{i}]", Ms[i, i])
+    costs = [np.inf] * len(cands)
+    starts: list[dict[str, float]] = [{} for _ in cands]
+    for model in ((Ms, DLs, DQs), (plant["M"], plant["D_L"], plant["D_Q"])):
+        got = _screen_from(vessel, prep, setup, plant, model, cands)
+        if got is None:
+            continue
+        for j, (c, st) in enumerate(zip(*got, strict=True)):
+            if c < costs[j]:
+                costs[j], starts[j] = c, st
+    if not np.any(np.isfinite(costs)):
+        return None
+    return costs, starts
+
+
+def _screen_from(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup, plant: dict[str, np.ndarray],
+                 model: tuple[np.ndarray, np.ndarray, np.ndarray],
+                 cands: list[CatalogueEffect]) -> tuple[list[float], list[dict[str, float]]] | None:
+    """Screening costs and steps of every variant from one start model (M, D_L, D_Q)."""
+    d = vessel.dof
+    M0, DL0, DQ0 = model
     nu_rms = np.sqrt(np.mean(prep.nu_raw**2, axis=0))
     h = 0.1
     n_c, K = len(cands), 1 + 2 * d + len(cands)
     terms = [c.maneuver_terms(np.array([[c.absent], [c.absent + h]])) for c in cands]
     batch = {k: np.concatenate([np.repeat(terms[0][k][:1], 1 + 2 * d, axis=0)] + [t[k][1:] for t in terms])
              for k in terms[0]}
-    best: tuple | None = None  # the start model or the vessel file's, whichever simulates the log better
-    for M0, DL0, DQ0 in ((Ms, DLs, DQs), (plant["M"], plant["D_L"], plant["D_Q"])):
-        sQ = np.maximum(np.abs(np.diag(DQ0)), 1e-3 * np.diag(plant["M"]))
-        sL = np.maximum(np.abs(np.diag(DL0)), sQ * nu_rms + 1e-6)
-        hd = 1e-2 * np.concatenate([sL, sQ])  # damping steps
-        M, DL, DQ = (np.repeat(a[None], K, axis=0) for a in (M0, DL0, DQ0))
-        for i in range(d):
-            DL[1 + i, i, i] += hd[i]
-            DQ[1 + d + i, i, i] += hd[d + i]
-        r = _sim_residual(setup, M, DL, DQ, **batch)[:, setup.mask]  # (K, compared samples, d)
-        if np.all(np.isfinite(r[: 1 + 2 * d])):
-            cost = float(np.sum(r[0] ** 2))
-            if best is None or cost < best[0]:
-                best = (cost, M0, DL0, DQ0, hd, r)
-    if best is None:
+    sQ = np.maximum(np.abs(np.diag(DQ0)), 1e-3 * np.diag(plant["M"]))
+    sL = np.maximum(np.abs(np.diag(DL0)), sQ * nu_rms + 1e-6)
+    hd = 1e-2 * np.concatenate([sL, sQ])  # damping steps
+    M, DL, DQ = (np.repeat(a[None], K, axis=0) for a in (M0, DL0, DQ0))
+    for i in range(d):
+        DL[1 + i, i, i] += hd[i]
+        DQ[1 + d + i, i, i] += hd[d + i]
+    r = _sim_residual(setup, M, DL, DQ, **batch)[:, setup.mask]  # (K, compared samples, d)
+    if not np.all(np.isfinite(r[: 1 + 2 * d])):
         return None
-    _, M0, DL0, DQ0, hd, r = best
-    r = np.where(np.isfinite(r), r, 1e3)  # a variant's step that diverges: a large residual
-    r = r.reshape(K, -1)
+    r = np.where(np.isfinite(r), r, 1e3).reshape(K, -1)  # a variant's step that diverges: large
     r0 = r[0]
     JD = ((r[1 : 1 + 2 * d] - r0) / hd[:, None]).T  # (rows, 2d)
     steps = []
@@ -302,7 +331,7 @@ def _screen_variants(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup, ls: 
         J = np.column_stack([JD, (r[k] - r0) / h])
         cs = np.maximum(np.linalg.norm(J, axis=0), 1e-300)
         steps.append(np.linalg.lstsq(J / cs, -r0, rcond=None)[0] / cs)
-    # the actual cost after each variant's step (nonlinear: a large loss is far from the baseline)
+    # the actual cost after each variant's step (nonlinear: a large loss is far from the start)
     st = np.array(steps)
     M, DL, DQ = (np.repeat(a[None], n_c, axis=0) for a in (M0, DL0, DQ0))
     ii = np.arange(d)
@@ -311,18 +340,14 @@ def _screen_variants(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup, ls: 
     terms = [c.maneuver_terms(np.array([[c.absent + st[j, -1]]])) for j, c in enumerate(cands)]
     batch = {k: np.concatenate([t[k] for t in terms]) for k in terms[0]}
     r1 = _sim_residual(setup, M, DL, DQ, **batch)[:, setup.mask].reshape(n_c, -1)
-    c0 = float(r0 @ r0)
-    scores, starts = [], []
+    costs, starts = [], []
     for j, (c, x) in enumerate(zip(cands, r1, strict=True)):
-        ok = bool(np.all(np.isfinite(x))) and float(x @ x) < c0
-        scores.append(c0 - float(x @ x) if ok else 0.0)
-        # a step that lowers the cost is where the variant's fit starts (fewer iterations)
+        ok = bool(np.all(np.isfinite(x)))
+        costs.append(float(x @ x) if ok else np.inf)
         starts.append({**{f"D_L[{i},{i}]": float(DL[j, i, i]) for i in range(d)},
-                       **{f"D_Q[{i},{i}]": float(DQ[j, i, i]) for i in range(d)},
+                       **{f"D_Q[{i},{i}]": float(max(DQ[j, i, i], 0.0)) for i in range(d)},
                        c.maneuver_params(d)[-1]: float(c.absent + st[j, -1])} if ok else {})
-    if not any(scores):  # no variant's step helps: the screen cannot rank them
-        return None
-    return scores, starts
+    return costs, starts
 
 
 def _output_error_one(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | None, ls: _LSResult,
@@ -364,7 +389,7 @@ def _output_error_held(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | N
     # DOFs whose motion is below the sensor noise keep their damping (the start's, else the vessel
     # file's): a log that barely moves them (roll and pitch under DP) cannot tell their damping,
     # and a free value there wanders to an unstable model
-    fl = excited_dofs(prep.nu_raw)
+    fl = excited_dofs(prep.nu_raw, vessel)
     held = [i for i in range(d) if i not in fl]
     for i in held:
         DL0[i, i] = (start or {}).get(f"D_L[{i},{i}]", plant["D_L"][i, i])
@@ -372,7 +397,7 @@ def _output_error_held(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | N
     if held:
         warnings.append(f"damping of {', '.join(NU_NAMES[d][i] for i in held)} held at "
                         f"{'the start' if start else 'the vessel file'}: motion below {1 / NOISE_MAX:g}x the "
-                        "sensor noise")
+                        "sensor noise (the log's, at least the vessel file's)")
     for key, val in hold.items():
         i = int(key[key.index("[") + 1 : key.index(",")])
         (DL0 if key.startswith("D_L") else DQ0)[i, i] = val
