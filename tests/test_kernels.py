@@ -765,3 +765,131 @@ def test_cache_folder_is_the_users_and_keyed_by_content(tmp_path, monkeypatch) -
     monkeypatch.delenv("NUMBA_CACHE_DIR")
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
     assert _jit.cache_dir().startswith(str(tmp_path / "xdg" / "seafmu" / "numba"))
+
+
+def test_dp_step_is_its_parts(vessel) -> None:
+    """The fused DP kernel = reference step, PID force and saturate/integrate called one by one."""
+    rng = np.random.default_rng(15)
+    d = vessel.dof
+    angle = np.array([n in ANGLE_NAMES for n in vessel.eta_names])
+    omega, zeta = rng.uniform(0.1, 1.0, d), np.ones(d)
+    coef = np.ascontiguousarray(
+        np.array([_exact_coefficients(w, zz, 0.05) for w, zz in zip(omega, zeta, strict=True)]).T
+    )
+    w2, two_zw = omega**2, 2 * zeta * omega
+    for _ in range(20):
+        x = _random_state(rng, vessel, 0)
+        eta, nu = x[:d], x[d:]
+        eta_ref, ref_x, ref_v = eta + rng.normal(size=d), eta + rng.normal(size=d), rng.normal(size=d) * 0.1
+        kp, kd, ki = rng.uniform(1, 500, d), rng.uniform(1, 500, d), rng.uniform(0, 50, d)
+        tau_max, z_max = rng.uniform(5, 200, d), rng.uniform(1, 10, d)
+        z = rng.normal(size=d)
+        fused = [np.empty(d) for _ in range(4)]
+        zf = z.copy()
+        control.dp_step(
+            0.05,
+            eta,
+            nu,
+            eta_ref,
+            ref_x,
+            ref_v,
+            coef,
+            w2,
+            two_zw,
+            angle,
+            *fused[:3],
+            zf,
+            kp,
+            kd,
+            ki,
+            angle,
+            tau_max,
+            z_max,
+            fused[3],
+        )
+        xo, vo, ao = np.empty(d), np.empty(d), np.empty(d)
+        control.reference_step(ref_x, ref_v, eta_ref, coef, w2, two_zw, angle, xo, vo, ao)
+        Jm, eta_dot, e, tau_new, tau = np.empty((d, d)), np.empty(d), np.empty(d), np.empty(d), np.empty(d)
+        control.pid_force(eta, nu, xo, vo, z, kp, kd, ki, angle, Jm, eta_dot, e, tau_new)
+        zs = z.copy()
+        control.saturate_integrate(0.05, e, tau_new, tau_max, ki, zs, z_max, Jm, tau)
+        for a, b in zip(fused, (xo, vo, ao, tau), strict=True):
+            np.testing.assert_array_equal(a, b)
+        np.testing.assert_array_equal(zf, zs)
+
+
+def test_pinv_step_is_its_parts(vessel) -> None:
+    """The fused pinv allocator step = pinv_clip + outputs + the camera thrusters' negative thrust;
+    a non-finite input writes nothing and says so."""
+    rng = np.random.default_rng(16)
+    th = vessel.thrusters
+    d, m = vessel.dof, th.count
+    B = np.ascontiguousarray(thruster_matrix(th, d))
+    P = np.ascontiguousarray(allocation_matrix(B, np.ones(m)))
+    p = _params(vessel)
+    T_max = speed_to_thrust(th, th.n_max)
+    lo, hi = -0.8 * T_max, 0.9 * T_max
+    k = 2 * m + d
+    pos = np.array([0, m, 2 * m, k, k + 1, k + 2 + m])
+    camera = np.array([0, 1][: max(1, m - 1)], dtype=np.int64)
+    off, zeros_m, zeros_d = np.zeros(m, dtype=bool), np.zeros(m), np.zeros(d)
+    tau_idx = np.arange(2, 2 + d, dtype=np.int64)  # tau sits among other inputs
+    for trial in range(20):
+        u = rng.normal(size=d + 4) * T_max.mean() * 2
+        y, Tc = np.zeros(3 * m + d + 3), np.empty(m)
+        ok = alloc.pinv_step(
+            u,
+            tau_idx,
+            P,
+            zeros_d,
+            zeros_m,
+            False,
+            lo,
+            hi,
+            B,
+            p.th,
+            int(p.flags[1]),
+            th.n_max,
+            off,
+            camera,
+            y,
+            pos,
+            k + 1 + m,
+            k + 3 + m,
+            Tc,
+        )
+        assert ok
+        tau = u[tau_idx]
+        T, Tr, sat = np.empty(m), np.empty(m), np.empty(m, dtype=bool)
+        alloc.pinv_clip(P, tau, zeros_d, zeros_m, False, lo, hi, T, Tr, sat)
+        yr = np.zeros_like(y)
+        alloc.outputs(Tr, tau, B, p.th, int(p.flags[1]), th.n_max, off, False, sat, yr, pos)
+        yr[k + 1 + m] = float(sum(-Tr[i] for i in camera if Tr[i] < 0.0))
+        np.testing.assert_array_equal(Tc, Tr)
+        np.testing.assert_array_equal(y, yr)
+        if trial == 0:
+            bad = u.copy()
+            bad[0] = np.nan  # not even one of the tau inputs: every input is checked
+            y2 = np.zeros_like(y)
+            assert not alloc.pinv_step(
+                bad,
+                tau_idx,
+                P,
+                zeros_d,
+                zeros_m,
+                False,
+                lo,
+                hi,
+                B,
+                p.th,
+                int(p.flags[1]),
+                th.n_max,
+                off,
+                camera,
+                y2,
+                pos,
+                k + 1 + m,
+                k + 3 + m,
+                Tc,
+            )
+            assert not y2.any()

@@ -127,3 +127,49 @@ def qp_result(
         t = min(max(x[i], lo[i]), hi[i])
         T[i] = t
         sat[i] = ((t <= lo[i] + tol) or (t >= hi[i] - tol)) and not off[i]
+
+
+@kernel
+def pinv_step(
+    u: np.ndarray,
+    tau_idx: np.ndarray,
+    P: np.ndarray,
+    tau_fixed: np.ndarray,
+    T_fixed: np.ndarray,
+    any_off: bool,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    B: np.ndarray,
+    th: np.ndarray,
+    quadratic: int,
+    n_max: np.ndarray,
+    off: np.ndarray,
+    camera: np.ndarray,
+    y: np.ndarray,
+    pos: np.ndarray,
+    front: int,
+    iterations: int,
+    Tc: np.ndarray,
+) -> bool:
+    """The whole ``pinv`` allocator step: False (nothing written) if an input is not finite; else
+    ``pinv_clip`` of tau = u[tau_idx], ``outputs``, the camera thrusters' negative thrust at y[front]
+    (summed in camera order) and 0 QP iterations at y[iterations]; the clipped thrusts into Tc."""
+    for i in range(u.shape[0]):
+        if not math.isfinite(u[i]):
+            return False
+    d, m = B.shape
+    tau = np.empty(d)
+    for j in range(d):
+        tau[j] = u[tau_idx[j]]
+    T = np.empty(m)
+    sat = np.empty(m, dtype=np.bool_)
+    pinv_clip(P, tau, tau_fixed, T_fixed, any_off, lo, hi, T, Tc, sat)
+    outputs(Tc, tau, B, th, quadratic, n_max, off, any_off, sat, y, pos)
+    neg = 0.0
+    for k in range(camera.shape[0]):
+        t = Tc[camera[k]]
+        if t < 0.0:
+            neg += -t
+    y[front] = neg
+    y[iterations] = 0.0
+    return True

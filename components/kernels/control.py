@@ -171,3 +171,39 @@ def saturate_integrate(
     for i in range(d):
         zi = z[i] + dz[i]
         z[i] = min(max(zi, -z_max[i]), z_max[i])
+
+
+@kernel
+def dp_step(
+    h: float,
+    eta: np.ndarray,
+    nu: np.ndarray,
+    eta_ref: np.ndarray,
+    ref_x: np.ndarray,
+    ref_v: np.ndarray,
+    coef: np.ndarray,
+    w2: np.ndarray,
+    two_zw: np.ndarray,
+    ref_angle: np.ndarray,
+    x_out: np.ndarray,
+    v_out: np.ndarray,
+    a_out: np.ndarray,
+    z: np.ndarray,
+    kp: np.ndarray,
+    kd: np.ndarray,
+    ki: np.ndarray,
+    angle: np.ndarray,
+    tau_max: np.ndarray,
+    z_max: np.ndarray,
+    tau: np.ndarray,
+) -> None:
+    """One DP step with every DOF held: ``reference_step``, ``pid_force`` on its output, then
+    ``saturate_integrate`` (z in place, tau out), in one call (the controller's usual step)."""
+    reference_step(ref_x, ref_v, eta_ref, coef, w2, two_zw, ref_angle, x_out, v_out, a_out)
+    d = eta.shape[0]
+    Jm = np.empty((d, d))
+    eta_dot = np.empty(d)
+    e = np.empty(d)
+    tau_new = np.empty(d)
+    pid_force(eta, nu, x_out, v_out, z, kp, kd, ki, angle, Jm, eta_dot, e, tau_new)
+    saturate_integrate(h, e, tau_new, tau_max, ki, z, z_max, Jm, tau)
