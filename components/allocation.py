@@ -48,6 +48,7 @@ import numpy as np
 
 from . import registry
 from .block import Block, Interface, Signal
+from .kernels import alloc as alloc_kernel
 from .thrusters import max_thrust, speed_to_thrust, thrust_to_speed, thruster_matrix
 from .vessel_spec import TAU_NAMES, VesselSpec
 
@@ -283,10 +284,8 @@ class QPAllocator:
         """Thrusts within [lo, hi] for ``tau`` and DAQP's exit flag (1 = optimal; < 0 = failed)."""
         m, n = self.m, self.n
         bu, bl = self._bu, self._bl
-        bu[:m] = hi
-        bl[:m] = lo
-        bu[n : n + self.d] = tau
-        bl[n : n + self.d] = tau
+        c = np.ascontiguousarray
+        alloc_kernel.qp_bounds(bu, bl, c(lo, dtype=float), c(hi, dtype=float), c(tau, dtype=float), n)
         if self._model is None:
             self._setup()
         else:
@@ -436,8 +435,9 @@ class QPLaw(AllocationLaw):
                  hi: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
         qp = blk._qp
         T, flag = qp.solve(tau, lo, hi)
-        if flag >= 0:
-            sat = ((T <= lo + _SAT_TOL) | (T >= hi - _SAT_TOL)) & ~blk._off
+        if flag >= 0:  # sat = ((T <= lo + tol) | (T >= hi - tol)) & ~off, compiled (T is clipped already)
+            sat = np.empty(len(T), dtype=bool)
+            alloc_kernel.qp_result(T, lo, hi, blk._off, _SAT_TOL, T, sat)
             return T, sat, qp.iterations
         qp.cold_start()  # never keep a failed active set
         T, sat = blk.pseudo_inverse(tau, lo, hi)
@@ -585,6 +585,18 @@ class AllocatorBlock(Block):
         self._o_sat = o.at(f"sat_{i}" for i in thr)
         self._o_err, self._o_front = o["alloc_error"], o["front_negative_thrust"]
         self._o_energy, self._o_iter = o["thrust_energy"], o["qp_iterations"]
+        # the compiled output step writes consecutive groups from their first positions
+        groups = (self._o_n, self._o_T, self._o_tau, self._o_sat)
+        self._o_pos = None
+        if all(isinstance(g, slice) for g in groups):
+            starts = [g.start for g in groups]  # type: ignore[union-attr]
+            self._o_pos = np.array([starts[0], starts[1], starts[2], self._o_err, starts[3], self._o_energy])
+        th = vessel.thrusters
+        self._th = np.ascontiguousarray(np.vstack([th.k_forward, th.k_reverse, 1.0 / th.time_constant]))
+        self._quadratic = int(th.law == "quadratic")
+        self._n_max = np.ascontiguousarray(th.n_max, dtype=float)
+        self._B_c = np.ascontiguousarray(self.B)
+        self._tau_idx = np.arange(len(self.inp), dtype=np.int64)[self._in_tau]
         self._y = np.zeros(len(o))
         self._T_prev = np.zeros(m)
         self._check_variant(self.params["allocator"])
@@ -619,6 +631,7 @@ class AllocatorBlock(Block):
             for i in self._camera:
                 rw[i] = max(rw[i], float(p["camera_weight"]))
         self._rw = rw
+        self._any_rw = bool((rw > 0.0).any())
         self._rate = np.array([float(p[f"thrust_rate_max_{i + 1}"]) for i in range(m)])
         self._has_rate = bool(np.any(self._rate > 0.0))
         off = np.array([not e for e in self._enabled])
@@ -630,6 +643,12 @@ class AllocatorBlock(Block):
         self._priority = np.array([float(p[f"priority_{t}"]) for t in self.vessel.tau_names])
         self._P = self._matrix(self._w)
         self._qp = self._qp_for() if law.uses_qp else None
+        # The plain pseudo-inverse without rate limits or weights to raise: the whole step is one
+        # compiled call (``alloc.pinv_step``) with the box of ``box(None)``.
+        self._fast_pinv = (type(law).allocate is AllocationLaw.allocate and not self._any_rw
+                           and not self._has_rate and self._o_pos is not None)
+        self._lo_fixed, self._hi_fixed = (np.ascontiguousarray(b, dtype=float) for b in self.box(None))
+        self._camera_idx = np.array(self._camera, dtype=np.int64)
 
     @property
     def _law(self) -> AllocationLaw:
@@ -688,6 +707,12 @@ class AllocatorBlock(Block):
     ) -> tuple[np.ndarray, np.ndarray]:
         """``pinv`` and ``pinv_camera`` (and the fallback of a failed QP): pseudo-inverse with the
         block's weights (reverse weights raised where thrust would go negative), then clip."""
+        if not self._any_rw:  # no weight to raise: one compiled call
+            m = self._m
+            T, Tc, sat = np.empty(m), np.empty(m), np.empty(m, dtype=bool)
+            alloc_kernel.pinv_clip(self._P, np.ascontiguousarray(tau, dtype=float), self._tau_fixed,
+                                   self._T_fixed, self._any_off, lo, hi, T, Tc, sat)
+            return Tc, sat
         if self._any_off:
             tau = tau - self._tau_fixed
         T = self._P @ tau
@@ -717,12 +742,29 @@ class AllocatorBlock(Block):
         u = np.asarray(u, dtype=float)
         if u.shape != self._in_shape:
             raise ValueError(f"allocator: expected {len(self.inp)} inputs, got {u.shape}")
+        if self._fast_pinv:
+            Tc = np.empty(self._m)
+            if alloc_kernel.pinv_step(np.ascontiguousarray(u), self._tau_idx, self._P, self._tau_fixed,
+                                      self._T_fixed, self._any_off, self._lo_fixed, self._hi_fixed, self._B_c,
+                                      self._th, self._quadratic, self._n_max, self._off, self._camera_idx,
+                                      self._y, self._o_pos, self._o_front, self._o_iter, Tc):
+                self._T_prev = Tc
+                return self._y.copy()
+            # a non-finite input: the general path below names it
         tau = u[self._in_tau]
         if not np.isfinite(u).all():
             bad = [n for n, v in zip(self.inp.names, u.tolist(), strict=True) if not np.isfinite(v)]
             raise ValueError(f"allocator: input '{bad[0]}' is not finite")
         T, sat, iterations = self.allocate(tau, h)
         self._T_prev = T
+        y = self._y
+        if self._o_pos is not None:  # n, T, tau_alloc, alloc_error, sat, thrust_energy: one compiled call
+            alloc_kernel.outputs(np.ascontiguousarray(T, dtype=float), np.ascontiguousarray(tau, dtype=float),
+                                 self._B_c, self._th, self._quadratic, self._n_max, self._off, self._any_off,
+                                 np.ascontiguousarray(sat), y, self._o_pos)
+            y[self._o_front] = negative_front_thrust(T, self._camera) if self._camera else 0.0
+            y[self._o_iter] = iterations
+            return y.copy()
         n = thrust_to_speed(self.vessel.thrusters, T)
         if self._any_off:
             n = np.where(self._off, 0.0, n)  # a failed or dropped thruster is commanded to stop

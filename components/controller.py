@@ -114,6 +114,7 @@ class ControllerBlock(Block):
         d = self.dof = vessel.dof
         self._angles = [n in ANGLE_NAMES for n in vessel.eta_names]
         self._angle_idx = np.flatnonzero(self._angles)
+        self._angle_mask = np.array(self._angles, dtype=bool)
         self._M = 0.5 * (vessel.M + vessel.M.T)
         self.ref = ReferenceModel(n_ref, 1.0, 1.0, angles=ref_angles)
         self.z = np.zeros(n_ref)  # integral of the (wrapped) error

@@ -40,8 +40,9 @@ from . import registry
 from .allocation import FORCE_UNIT, thrust_capability
 from .block import Interface, Signal
 from .controller import ControllerBlock, restoring_stiffness
-from .dynamics import J, coriolis_force, rpsi, rzyx, tzyx_inv
+from .dynamics import coriolis_force, rpsi, rzyx, tzyx_inv
 from .guidance import PathGuidance, lawnmower, parse_waypoints
+from .kernels import control as control_kernel
 from .vessel_spec import VesselSpec, state_unit
 
 # Default design data (Minerva 2's, docs/gnc.md); a vessel file's gnc.tuning overrides each.
@@ -354,6 +355,26 @@ class DPPidController(ControllerBlock):
         return self._M @ nu_dd + cor + vs.D_L @ nu_d + vs.D_Q @ (np.abs(nu_d) * nu_d)
 
     # -- the law -------------------------------------------------------------------------------
+    def _held_step(self, h: float, u: np.ndarray, eta: np.ndarray, nu: np.ndarray,
+                   eta_ref: np.ndarray) -> np.ndarray:
+        """The usual step: every DOF held at its setpoint, no switch, no latch, no blend offset, an
+        unlimited reference model. The general path's operations in one compiled call (reference
+        model, PID, saturation and conditional integration; z in place)."""
+        ref, d = self.ref, self.dof
+        x, v, a, tau = np.empty(d), np.empty(d), np.empty(d), np.empty(d)
+        w2, two_zw = ref.rates()
+        control_kernel.dp_step(h, eta, nu, np.ascontiguousarray(eta_ref), ref.x, ref.v, ref.coefficients(h),
+                               w2, two_zw, ref.angles, x, v, a, self.z, self.kp, self.kd, self.ki,
+                               self._angle_mask, self.tau_max, self._z_max, tau)
+        ref.x, ref.v, ref.a = x, v, a
+        y = np.zeros(self._n_out)
+        if self.guidance is not None:
+            y[self._o_corner] = self.guidance.corner_error
+        self._ref_seen = u[self._in_ref].copy()
+        y[self._o_tau] = tau
+        y[self._o_eta_d] = x
+        return y
+
     def _step_law(self, h: float, u: np.ndarray, switched: bool) -> np.ndarray:
         tab = self._tab
         eta, nu, eta_ref = u[self._in_eta], u[self._in_nu], u[self._in_ref]
@@ -369,12 +390,15 @@ class DPPidController(ControllerBlock):
             eta_ref = self._latched(eta_ref)
         free = tab.free[mode]
         any_free = mode in tab.any_free
-        Jm = J(eta)
-        Jt = Jm.T
-        eta_dot = Jm @ nu
+        if not (switched or any_free or mode == MODE_WAYPOINT or self._latch_any) and self.ref.exact \
+                and not self._offset.any():
+            return self._held_step(h, u, eta, nu, eta_ref)
+        d = self.dof
+        Jm, eta_dot, e, tau_new = np.empty((d, d)), np.empty(d), np.empty(d), np.empty(d)
         eta_d, eta_d_dot, eta_d_dd = self.ref.step(h, eta_ref)
         y = np.zeros(self._n_out)
         if mode == MODE_WAYPOINT or any_free:
+            control_kernel.eta_rate(eta, nu, Jm, eta_dot)
             eta_d, eta_d_dot, eta_d_dd = eta_d.copy(), eta_d_dot.copy(), eta_d_dd.copy()
             if mode == MODE_WAYPOINT and self.guidance is not None:
                 g = self.guidance.step(h, eta[:2], float(eta_ref[self._yaw]))
@@ -389,11 +413,9 @@ class DPPidController(ControllerBlock):
             self.ref.x, self.ref.v, self.ref.a = eta_d.copy(), eta_d_dot.copy(), eta_d_dd.copy()
         if self.guidance is not None and mode != MODE_WAYPOINT:
             y[self._o_corner] = self.guidance.corner_error
-        e = eta - eta_d
-        ai = self._angle_idx
-        e[ai] = (e[ai] + math.pi) % (2.0 * math.pi) - math.pi
-        edot = eta_dot - eta_d_dot
-        tau_new = -(Jt @ (self.kp * e + self.kd * edot + self.ki * self.z))
+        # J, eta_dot = J nu, e = eta - eta_d (angles wrapped), tau = -J^T (Kp e + Kd edot + Ki z), compiled
+        control_kernel.pid_force(eta, nu, eta_d, eta_d_dot, self.z, self.kp, self.kd, self.ki,
+                                 self._angle_mask, Jm, eta_dot, e, tau_new)
         if mode == MODE_WAYPOINT and self._ff_gain > 0.0:
             tau_new += self._ff_gain * self._feedforward(eta, eta_d_dot, eta_d_dd)
         if any_free:
@@ -403,8 +425,11 @@ class DPPidController(ControllerBlock):
                     tau_new[ti] += joy[kk] * self._joy_max[kk]
         self._blend(switched, h, tau_new)
         tau_unsat = tau_new + self._offset if self._offset.any() else tau_new
-        tau = np.minimum(np.maximum(tau_unsat, -self.tau_max), self.tau_max)
-        self._integrate(h, e, tau_unsat, tau, Jt)  # e = 0 on free DOFs: their integral is held
+        # tau = clip(tau_unsat) and the conditional integration (ControllerBlock._integrate with
+        # J^T = Jm.T), compiled; e = 0 on free DOFs: their integral is held
+        tau = np.empty(d)
+        control_kernel.saturate_integrate(h, e, tau_unsat, self.tau_max, self.ki, self.z, self._z_max, Jm,
+                                          tau)
         self._ref_seen = u[self._in_ref].copy()
         y[self._o_tau] = tau
         y[self._o_eta_d] = eta_d

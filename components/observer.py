@@ -44,10 +44,11 @@ eta + xi, body velocities (DVL) as nu + R(Theta)^T zeta. The estimates given to 
 The model is the classical DP observer structure (Fossen 2011, ch. 11; Sørensen 2011).
 
 Why hand-written: filterpy/pykalman would need the Jacobian from us anyway and add a Python call
-layer per step; the cost on an 18-state filter is the number of NumPy calls, so the Jacobian is
-analytic (kinematics, restoring, damping) and the Coriolis term uses a precomputed tensor (C(nu) nu
-is quadratic in nu, so one tensor-vector product gives both the Jacobian G(nu) and
-C(nu) nu = G(nu) nu / 2).
+layer per step; the Jacobian is analytic (kinematics, restoring, damping) and the Coriolis term
+uses a precomputed tensor (C(nu) nu is quadratic in nu, so one tensor-vector product gives both the
+Jacobian G(nu) and C(nu) nu = G(nu) nu / 2). The numerics run compiled
+(``components/kernels/ekf.py``, numba): model and Jacobian, prediction, and the updates, which
+solve with the Cholesky factor of S instead of forming S^-1 (Joseph form kept).
 """
 
 from __future__ import annotations
@@ -62,6 +63,7 @@ from scipy.special import chdtri
 from .allocation import FORCE_UNIT
 from .block import Block, Interface, Signal
 from .dynamics import coriolis_tensor, restoring_coefficients, rzyx, wrap_angle
+from .kernels import ekf as ekf_kernel
 from .vessel_spec import ANGLE_NAMES, VesselSpec, state_unit
 
 PREDICT_DT_MAX = 0.05  # s: largest prediction sub-step
@@ -189,6 +191,11 @@ class ObserverBlock(Block):
             self._g6 = restoring_coefficients(rs.weight, rs.buoyancy, rs.r_g, rs.r_b)
         state_names = vessel.eta_names + vessel.nu_names
         self._angle_list = [i for i, nm in enumerate(vessel.eta_names) if nm in ANGLE_NAMES]
+        self._angle_arr = np.array(self._angle_list, dtype=np.int64)
+        # what the compiled kernels take: contiguous float64, zeros where a part does not apply
+        self._MinvG = np.ascontiguousarray(self._MinvG)
+        self._g6_arr = np.array(self._g6 if d == 6 else (0.0, 0.0, 0.0, 0.0), dtype=float)
+        self._Aw = np.zeros((0, 0))
 
         # Sensors: where their inputs are, which states they measure.
         inp = self.inp
@@ -273,95 +280,20 @@ class ObserverBlock(Block):
         their force is S nu / 2): A_nu,nu = -(S + M^-1 D_L) and
         nu_dot = M^-1 (tau + b - g) - (S/2 + M^-1 D_L) nu.
         """
-        d = self.d
         A = self._A
-        nu = x[d : 2 * d]
-        S = self._MinvG @ nu + self._MinvDQ * (2.0 * np.abs(nu))
-        if d == 6:
-            eta_dot, g = self._kin6(x, A)
-            force = tau + x[12:18] - g
-        else:
-            eta_dot = self._kin3(x, A)
-            force = tau + x[6:9]
-        A[d : 2 * d, d : 2 * d] = -(S + self._MinvDL)
         f = np.empty(self.n)
-        f[:d] = eta_dot
-        f[d : 2 * d] = self.Minv @ force - (0.5 * S + self._MinvDL) @ nu
-        f[2 * d : 3 * d] = -self._inv_tb * x[2 * d : 3 * d]
-        if self.nw:
-            f[3 * d :] = self._Aw @ x[3 * d :]
+        ekf_kernel.model(np.ascontiguousarray(x, dtype=float), np.ascontiguousarray(tau, dtype=float), self.d,
+                         self.nw, self._inv_tb, self.Minv, self._MinvG, self._MinvDL, self._MinvDQ,
+                         self._g6_arr, self._Aw, A, f)
         return f, A
-
-    @staticmethod
-    def _kin3(x: np.ndarray, A: np.ndarray) -> list[float]:
-        """eta_dot; writes d(eta_dot)/d eta and J into A."""
-        psi, u, v, r = x[2:6].tolist()
-        c, s = math.cos(psi), math.sin(psi)
-        A[:3, 2:6] = [[-s * u - c * v, c, -s, 0.0], [c * u - s * v, s, c, 0.0], [0.0, 0.0, 0.0, 1.0]]
-        return [c * u - s * v, s * u + c * v, r]
-
-    def _kin6(self, x: np.ndarray, A: np.ndarray) -> tuple[list[float], np.ndarray]:
-        """eta_dot and restoring g; writes d(eta_dot)/d Theta, J and -M^-1 dg/d(phi, theta) into A."""
-        phi, th, psi, u, v, w, p, q, r = x[3:12].tolist()
-        cf, sf = math.cos(phi), math.sin(phi)
-        ct, st = math.cos(th), math.sin(th)
-        cp, sp = math.cos(psi), math.sin(psi)
-        tt = st / ct
-        R11, R12, R13 = cp * ct, -sp * cf + cp * st * sf, sp * sf + cp * cf * st
-        R21, R22, R23 = sp * ct, cp * cf + sf * st * sp, -cp * sf + st * sp * cf
-        R31, R32, R33 = -st, ct * sf, ct * cf
-        pn = R11 * u + R12 * v + R13 * w
-        pe = R21 * u + R22 * v + R23 * w
-        pd = R31 * u + R32 * v + R33 * w
-        qs = q * sf + r * cf  # recurring in T(Theta) [p, q, r]
-        qc = q * cf - r * sf
-        # d(R nu1)/dphi = R (e_x x nu1); d/dtheta = Rz (e_y x (Ry Rx nu1)); d/dpsi = e_z x (R nu1).
-        c3 = sf * v + cf * w  # third entry of Rx nu1
-        a1, a3 = ct * u + st * c3, -st * u + ct * c3  # entries 1 and 3 of Ry Rx nu1
-        ct2 = ct * ct
-        # Rows of A[0:6, 3:12] = [d(eta_dot)/d Theta | J(eta)].
-        A[:6, 3:12] = [
-            [-R12 * w + R13 * v, cp * a3, -pe, R11, R12, R13, 0.0, 0.0, 0.0],
-            [-R22 * w + R23 * v, sp * a3, pn, R21, R22, R23, 0.0, 0.0, 0.0],
-            [-R32 * w + R33 * v, -a1, 0.0, R31, R32, R33, 0.0, 0.0, 0.0],
-            [qc * tt, qs / ct2, 0.0, 0.0, 0.0, 0.0, 1.0, sf * tt, cf * tt],
-            [-qs, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, cf, -sf],
-            [qc / ct, qs * st / ct2, 0.0, 0.0, 0.0, 0.0, 0.0, sf / ct, cf / ct],
-        ]
-        wb, gx, gy, gz = self._g6
-        g = np.array([
-            wb * st, -wb * ct * sf, -wb * ct * cf,
-            -gy * ct * cf + gz * ct * sf, gz * st + gx * ct * cf, -gx * ct * sf - gy * st,
-        ])
-        dg = np.array([  # columns d/dphi, d/dtheta
-            [0.0, wb * ct],
-            [-wb * ct * cf, wb * st * sf],
-            [wb * ct * sf, wb * st * cf],
-            [gy * ct * sf + gz * ct * cf, gy * st * cf - gz * st * sf],
-            [-gx * ct * sf, gz * ct - gx * st * cf],
-            [-gx * ct * cf, gx * st * sf - gy * ct],
-        ])
-        A[6:12, 3:5] = -(self.Minv @ dg)  # restoring depends on roll and pitch only
-        return [pn, pe, pd, p + qs * tt, qc, qs / ct], g
 
     # -- filter --------------------------------------------------------------------------------
     def predict(self, h: float, tau: np.ndarray) -> None:
         k = max(1, math.ceil(h / PREDICT_DT_MAX - 1e-9))
-        dt = h / k
-        Qd = self._Qc * dt
-        diag = self._diag
-        for _ in range(k):
-            f, A = self._model(self.x, tau)
-            hA = dt * A
-            self.x += dt * (f + 0.5 * (hA @ f))
-            Phi = hA @ hA
-            Phi *= 0.5
-            Phi += hA
-            Phi[diag] += 1.0
-            P = Phi @ self.P @ Phi.T
-            P[diag] += Qd
-            self.P = P
-        self._wrap()
+        # x and P in place
+        ekf_kernel.predict(self.x, self.P, np.ascontiguousarray(tau, dtype=float), k, h / k, self._Qc, self.d,
+                           self.nw, self._inv_tb, self.Minv, self._MinvG, self._MinvDL, self._MinvDQ,
+                           self._g6_arr, self._Aw, self._A, self._angle_arr)
 
     def _update(self, z: np.ndarray, ch: _Channels) -> bool:
         """Measurement update with one sensor's channels; False if rejected by the gate."""
@@ -369,39 +301,21 @@ class ObserverBlock(Block):
             return self._first_fix(z, ch)
         if ch.wave and self.nw:
             return self._update_wave(z, ch)
-        sel, var = ch.sel, ch.var * self._r_scale
-        P = self.P
-        y = z - self.x[sel]
-        if ch.has_angle:
-            y[ch.angle] = (y[ch.angle] + math.pi) % (2.0 * math.pi) - math.pi
-        PHt = P[:, sel]  # P H^T (H selects states)
-        S = PHt[sel].copy()  # a view of P when sel is a slice
-        S[ch.diag] += var
-        Sinv = np.linalg.inv(S)
-        if not self._gated(y, Sinv, ch):
+        ok, _ = ekf_kernel.update_measured(self.x, self.P, ch.idx, z, ch.angle, ch.var, self._r_scale,
+                                           self._threshold(ch, len(z)), self._angle_arr)  # x, P in place
+        if not ok:
             return self._rejected(z, ch)
-        K = PHt @ Sinv
-        self.x += K @ y
-        # Joseph form (I - KH) P (I - KH)^T + K R K^T, written with H = selection of the channels:
-        # (I - KH) P = P - K (H P) and A1 (I - KH)^T = A1 - (A1 H^T) K^T.
-        A1 = P - K @ P[sel, :]
-        P = A1 - A1[:, sel] @ K.T + (K * var) @ K.T
-        P += P.T
-        P *= 0.5
-        self.P = P
-        self._wrap()
-        return True
-
-    def _gated(self, y: np.ndarray, Sinv: np.ndarray, ch: _Channels) -> bool:
-        """True if the innovation passes the gates (NIS test, chi-square test on position fixes)."""
-        if self._gate > 0.0 or (ch.pos_fix and self._gate_p > 0.0):
-            nis = float(y @ Sinv @ y)
-            if (self._gate > 0.0 and nis > self._gate) or (ch.pos_fix and self._gate_p > 0.0 and nis > (
-                    self._pos_thr.get(len(y)) or chi2_quantile(self._gate_p, len(y)))):
-                return False
         if ch.pos_fix:
             self._consecutive = 0
         return True
+
+    def _threshold(self, ch: _Channels, m: int) -> float:
+        """The largest NIS y^T S^-1 y a sample of m channels may have (inf: no gate applies): the
+        innovation gate, and the chi-square gate on position fixes."""
+        thr = self._gate if self._gate > 0.0 else math.inf
+        if ch.pos_fix and self._gate_p > 0.0:
+            thr = min(thr, self._pos_thr.get(m) or chi2_quantile(self._gate_p, m))
+        return thr
 
     def _rejected(self, z: np.ndarray, ch: _Channels) -> bool:
         """Count a gated sample; too many consecutive rejected position fixes reset the position."""
@@ -445,23 +359,12 @@ class ObserverBlock(Block):
         y = z - zhat
         if ch.has_angle:
             y[ch.angle] = (y[ch.angle] + math.pi) % (2.0 * math.pi) - math.pi
-        var = ch.var * self._r_scale
-        P = self.P
-        PHt = P @ H.T
-        S = H @ PHt
-        S[ch.diag] += var
-        Sinv = np.linalg.inv(S)
-        if not self._gated(y, Sinv, ch):
+        ok, _ = ekf_kernel.update_general(self.x, self.P, H, y, ch.var * self._r_scale,
+                                          self._threshold(ch, m), self._angle_arr)  # x, P in place
+        if not ok:
             return self._rejected(z, ch)
-        K = PHt @ Sinv
-        self.x += K @ y
-        IKH = -K @ H
-        IKH[self._diag] += 1.0
-        P = IKH @ P @ IKH.T + (K * var) @ K.T
-        P += P.T
-        P *= 0.5
-        self.P = P
-        self._wrap()
+        if ch.pos_fix:
+            self._consecutive = 0
         return True
 
     def _body_wave_velocity(self, x: np.ndarray, zeta: np.ndarray) -> tuple[np.ndarray, list, np.ndarray]:

@@ -20,7 +20,7 @@ import numpy as np
 
 from .allocation import FORCE_UNIT
 from .block import Block, Interface, Signal
-from .dynamics import J, wrap_angle
+from .dynamics import wrap_angle
 from .environment import GaussMarkovCurrent
 from .sensors import SensorSuite, mag_heading_error
 from .vessel_model import VesselModel
@@ -203,13 +203,15 @@ class PlantBlock(Block):
         return new
 
     def _outputs(self, sensors_changed: bool = True) -> np.ndarray:
+        x = self._x
         if sensors_changed:
             self._sensor_out = self._sensors.output()
-        x = self._x
-        y = np.empty(self._n_out)
+            y = np.empty(self._n_out)
+            y[self._o_sensors] = self._sensor_out
+        else:  # the held samples are the last outputs' (most steps take no sample)
+            y = self._y.copy()
         y[self._o_x] = x
         y[self._o_thrust] = self._model.thrust_list(x[2 * self.vessel.dof :].tolist())
-        y[self._o_sensors] = self._sensor_out
         y[self._o_course_sog] = self._course_sog()
         y[self._o_env] = self._env_out()
         return y
@@ -231,11 +233,26 @@ class PlantBlock(Block):
     def _course_sog(self) -> list[float]:
         """Course and speed over ground: what a surface vessel's crab-angle compensation aims at."""
         d = self.vessel.dof
-        eta_dot = J(self._x[:d]) @ self._x[d : 2 * d]
-        vn, ve = float(eta_dot[0]), float(eta_dot[1])
+        vn, ve = self._horizontal_velocity()
         sog = math.hypot(vn, ve)
         course = math.atan2(ve, vn) if sog > 1e-6 else float(self._x[d - 1])
         return [course, sog]
+
+    def _horizontal_velocity(self) -> tuple[float, float]:
+        """(north, east) rates: the first two rows of J(eta) nu, in floats (R(Theta) or R(psi))."""
+        if self.vessel.dof == 6:
+            _, _, _, phi, theta, psi, u, v, w = self._x[:9].tolist()
+            cphi, sphi = math.cos(phi), math.sin(phi)
+            cth, sth = math.cos(theta), math.sin(theta)
+            cpsi, spsi = math.cos(psi), math.sin(psi)
+            vn = (cpsi * cth * u + (-spsi * cphi + cpsi * sth * sphi) * v
+                  + (spsi * sphi + cpsi * cphi * sth) * w)
+            ve = (spsi * cth * u + (cpsi * cphi + sphi * sth * spsi) * v
+                  + (-cpsi * sphi + sth * spsi * cphi) * w)
+            return vn, ve
+        _, _, psi, u, v = self._x[:5].tolist()
+        c, s = math.cos(psi), math.sin(psi)
+        return c * u - s * v, s * u + c * v
 
     def output(self) -> np.ndarray:
         return self._y.copy()

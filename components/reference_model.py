@@ -24,6 +24,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from .dynamics import wrap_angle
+from .kernels import control as control_kernel
 
 RK4_DT_MAX = 0.05  # s: largest RK4 sub-step when limits are active
 _TWO_PI = 2.0 * math.pi
@@ -130,16 +131,16 @@ class ReferenceModel:
 
         The returned arrays are the model's own state: copy them before changing them.
         """
+        if not self._limited:
+            # the exact discrete step, compiled: e0 = x - x_ref (wrapped), [e, v] = Phi [e0, v],
+            # x += e - e0 (wrapped), a = -w^2 e - 2 zeta w v
+            x, v, a = np.empty(self.n), np.empty(self.n), np.empty(self.n)
+            control_kernel.reference_step(self.x, self.v, np.ascontiguousarray(x_ref, dtype=float),
+                                          self.coefficients(h), self._w2, self._2zw, self.angles, x, v, a)
+            self.x, self.v, self.a = x, v, a
+            return self.x, self.v, self.a
         e0 = self.error(np.asarray(x_ref, dtype=float))
-        if self._limited:
-            e, v = self._rk4(e0, self.v, h)
-        else:
-            if h != self._coef_h:
-                coef = [_exact_coefficients(w, z, h) for w, z in zip(self.omega, self.zeta, strict=True)]
-                self._coef = np.array(coef).T  # rows p11, p12, p21, p22
-                self._coef_h = h
-            p11, p12, p21, p22 = self._coef
-            e, v = p11 * e0 + p12 * self.v, p21 * e0 + p22 * self.v
+        e, v = self._rk4(e0, self.v, h)
         # Only the (wrapped) error was propagated: moving x_d by its change keeps x_d continuous.
         x = self.x + (e - e0)
         ai = self._angle_idx
@@ -148,6 +149,23 @@ class ReferenceModel:
         self.x, self.v = x, v
         self.a = self._accel(e, v)
         return self.x, self.v, self.a
+
+    @property
+    def exact(self) -> bool:
+        """True without velocity/acceleration limits: a step is the exact discrete solution."""
+        return not self._limited
+
+    def rates(self) -> tuple[np.ndarray, np.ndarray]:
+        """(omega^2, 2 zeta omega) per DOF: with ``coefficients`` what a compiled step takes."""
+        return self._w2, self._2zw
+
+    def coefficients(self, h: float) -> np.ndarray:
+        """Rows p11, p12, p21, p22 of Phi = expm(A h) per DOF (4, n), contiguous; cached per h."""
+        if h != self._coef_h:
+            coef = [_exact_coefficients(w, z, h) for w, z in zip(self.omega, self.zeta, strict=True)]
+            self._coef = np.ascontiguousarray(np.array(coef).T)
+            self._coef_h = h
+        return self._coef
 
     def _accel(self, e: np.ndarray, v: np.ndarray) -> np.ndarray:
         a = -self._w2 * e - self._2zw * v

@@ -33,6 +33,9 @@ from .dynamics import wrap_angle
 from .vessel_spec import ANGLE_NAMES, SensorSpec
 
 _EPS = 1e-6  # in units of sample periods: absorbs round-off of t + h at exact sample instants
+# Random numbers are drawn CHUNK samples at a time: one Generator call per CHUNK samples instead of
+# one per sample (the hot path), and the same numbers (a Generator fills an array in sequence).
+CHUNK = 256
 FAULT_STREAM = 0x5EAF  # entropy tag of the fault generator: SeedSequence([seed, FAULT_STREAM])
 
 
@@ -54,6 +57,11 @@ class SensorGroup:
         self.std = noise_scale * np.asarray(spec.noise_std, dtype=float)
         self.bias = noise_scale * np.asarray(spec.bias, dtype=float)
         self.rng = rng
+        self._noise = np.zeros((0, len(index)))  # standard normals drawn ahead (CHUNK rows), next row
+        self._next = 0
+        self._uniform = np.zeros((0, 2))  # the fault stream's uniforms drawn ahead, next row
+        self._next_u = 0
+        self._angle_pos = [i for i, a in enumerate(self.angle.tolist()) if a]
         self.values = np.zeros(len(index))
         self.count = 0.0
         self.last_k: int | None = None  # index of the last sample instant served
@@ -72,22 +80,41 @@ class SensorGroup:
         self.outliers = 0.0  # outliers injected so far
         self.in_dropout = False
 
+    def _normal(self) -> np.ndarray:
+        """The next standard-normal vector of this sensor's stream (len(index) values)."""
+        if self._next >= len(self._noise):
+            self._noise = self.rng.standard_normal((CHUNK, len(self.index)))
+            self._next = 0
+        row = self._noise[self._next]
+        self._next += 1
+        return row
+
+    def _fault_uniforms(self) -> list[float]:
+        """The next two uniforms of the fault stream (this group's position fixes draw them)."""
+        if self._next_u >= len(self._uniform):
+            assert self.fault_rng is not None
+            self._uniform = self.fault_rng.uniform(size=(CHUNK, 2))
+            self._next_u = 0
+        row = self._uniform[self._next_u].tolist()
+        self._next_u += 1
+        return row
+
     def _take(self, state: np.ndarray) -> None:
-        noise = self.std * self.rng.standard_normal(len(self.index))
+        noise = self.std * self._normal()
         vals = state[self.index] + self.bias + noise
         if self.mag_fault != 0.0 and self.yaw_pos >= 0:
             vals[self.yaw_pos] += mag_heading_error(float(state[self.yaw_state]), self.mag_fault)
         if self.pos_fix and self.fault_rng is not None:
-            x, ang = self.fault_rng.uniform(size=2).tolist()  # drawn for every fix: stream aligned
+            x, ang = self._fault_uniforms()  # drawn for every fix: stream aligned
             if x < self.outlier_rate:
                 vals[self.north_pos] += self.outlier_size * math.cos(2.0 * math.pi * ang)
                 vals[self.east_pos] += self.outlier_size * math.sin(2.0 * math.pi * ang)
                 self.outliers += 1.0
-        if self.angle.any():
+        for i in self._angle_pos:
             # wrap only what left (-pi, pi]: wrap_angle's mod arithmetic perturbs in-range values
-            out = self.angle & ((vals > math.pi) | (vals <= -math.pi))
-            if out.any():
-                vals[out] = wrap_angle(vals[out])
+            a = vals[i]
+            if a > math.pi or a <= -math.pi:
+                vals[i] = wrap_angle(a)
         self.values = vals
         self.count += 1.0
 

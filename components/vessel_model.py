@@ -15,10 +15,10 @@ The state integrated by RK4 is x = [eta, nu, n] (2 dof + m values): the shaft la
 same integrator so a thruster spinning up inside one co-simulation step is resolved.
 
 Two implementations of the same right-hand side exist on purpose:
-- ``rhs`` is the hot path (every RK4 stage of every co-simulation step): Python floats for the
-  trigonometry and the cross products, and ONE precomputed 6 x (m + 18) matrix product
-  K = M^-1 [B, -I, -D_L, -D_Q] for everything linear, because on vectors this short the cost is
-  the number of NumPy calls, not the arithmetic;
+- ``rhs`` and ``rk4`` are the hot path (every RK4 stage of every co-simulation step), compiled
+  (``components/kernels/rigid_body.py``, numba): scalars for the trigonometry and the cross
+  products, and ONE precomputed 6 x (m + 18) matrix K = M^-1 [B, -I, -D_L, -D_Q] for everything
+  linear; a whole co-simulation step (all RK4 sub-steps) is one call;
 - ``derivative`` is the textbook matrix form (``m2c``, ``J``) used by the tests to check ``rhs``.
 
 Mass matrices: the symmetric parts of M_RB and M_A are used everywhere (inertia and Coriolis).
@@ -33,8 +33,9 @@ import math
 
 import numpy as np
 
-from .dynamics import J, gvect, m2c, restoring_coefficients, rzyx, wrap_angle
+from .dynamics import J, gvect, m2c, restoring_coefficients, rzyx
 from .environment import current_body
+from .kernels import rigid_body
 from .thrusters import speed_to_thrust, thruster_matrix
 from .vessel_spec import ANGLE_NAMES, VesselSpec
 
@@ -64,28 +65,27 @@ class VesselModel:
         self.angle_index = [i for i, name in enumerate(spec.eta_names) if name in ANGLE_NAMES]
         self.coriolis = spec.coriolis != "none"
         self.relative_inertia = spec.current_inertia == "relative"
-        self._M_lin = self.M[:, :3].tolist() if dof == 6 else self.M[:, :2].tolist()  # M times a velocity
 
         # nu_dot = K @ [T, C+g, nu_r, |nu_r| nu_r]
         self._K = self._k_matrix(self.B)
-        self._M_stack = np.vstack([self.M_RB, self.M_A])  # [M_RB nu; M_A nu] in one product
-        self._MA_lin = self.M_A[:, :3].tolist()  # M_A times the (linear-only) current
         th = spec.thrusters
         self._kf = th.k_forward.tolist()
         self._kr = th.k_reverse.tolist()
-        self._inv_tc = (1.0 / th.time_constant).tolist()
         self._n_max = th.n_max.tolist()
         self._quadratic = th.law == "quadratic"
-        if dof == 3:
-            # rows u and v of M_RB and M_A: [a_x, a_y] = first two components of M nu
-            self._c3 = tuple(self.M_RB[:2].ravel().tolist() + self.M_A[:2].ravel().tolist())
-        else:
+        if dof == 6:
             rs = spec.restoring
             if rs is None:
                 raise ValueError(f"vessel '{spec.name}': 6-DOF model needs a restoring section")
             self.W, self.Bu = rs.weight, rs.buoyancy
             self.r_g, self.r_b = np.asarray(rs.r_g, float), np.asarray(rs.r_b, float)
             self._g6 = restoring_coefficients(self.W, self.Bu, self.r_g, self.r_b)
+        # the compiled kernels' packed parameters (contiguous float64), K the nominal one
+        self.kernel_params = rigid_body.rigid_body_params(
+            self.M_RB, self.M_A, self.D_L, self.D_Q, self.B, self._g6 if dof == 6 else None, th.k_forward,
+            th.k_reverse, th.time_constant, self._quadratic, self.coriolis, self.relative_inertia,
+            self.angle_index)._replace(K=np.ascontiguousarray(self._K))
+        self._no_ext = np.zeros(dof)
 
     def _k_matrix(self, B: np.ndarray) -> np.ndarray:
         return self.Minv @ np.hstack([B, -np.eye(self.dof), -self.D_L, -self.D_Q])
@@ -110,10 +110,13 @@ class VesselModel:
         ``tau_ext``: extra body-frame generalized force (environment, test rigs), added to B T.
         ``K``: from ``k_matrix`` for thrusters off their nominal efficiency (default nominal).
         """
-        K = self._K if K is None else K
-        if self.dof == 6:
-            return self._rhs6(x, n_cmd, vc_north, vc_east, tau_ext, K)
-        return self._rhs3(x, n_cmd, vc_north, vc_east, tau_ext, K)
+        p = self.kernel_params
+        out = np.empty(self.n_states)
+        ext = self._no_ext if tau_ext is None else np.asarray(tau_ext, dtype=float)
+        rigid_body.rhs(np.asarray(x, dtype=float), np.asarray(n_cmd, dtype=float), float(vc_north),
+                       float(vc_east), ext, tau_ext is not None, p.K if K is None else K, p.MS, p.MAL, p.ML,
+                       p.g6, p.th, p.flags, np.zeros(self.m + 3 * self.dof), out)
+        return out
 
     def thrust_list(self, n: list[float]) -> list[float]:
         """Thrust law on a list of shaft speeds (same law as ``thrusters.speed_to_thrust``, faster)."""
@@ -126,111 +129,18 @@ class VesselModel:
         """Speed commands limited to +-n_max, as the list ``rhs``/``rk4`` take."""
         return [min(max(float(c), -m), m) for c, m in zip(n_cmd, self._n_max, strict=True)]
 
-    def _thrust_and_lag(self, n: list[float], n_cmd: list[float]) -> tuple[list[float], list[float]]:
-        ndot = [(c - ni) * it for ni, c, it in zip(n, n_cmd, self._inv_tc, strict=True)]
-        return self.thrust_list(n), ndot
-
-    def _rhs3(self, x: np.ndarray, n_cmd: list[float], vcn: float, vce: float,
-              tau_ext: list[float] | None, K: np.ndarray) -> np.ndarray:
-        _, _, psi, u, v, r, *n = x.tolist()
-        c, s = math.cos(psi), math.sin(psi)
-        ur, vr = u - (c * vcn + s * vce), v - (-s * vcn + c * vce)
-        m11, m12, m13, m21, m22, m23, a11, a12, a13, a21, a22, a23 = self._c3
-        if self.coriolis:
-            # C(nu) nu = [-r a_y, r a_x, u a_y - v a_x], [a_x, a_y] from M nu (6-DOF m2c on u, v, r).
-            ax, ay = m11 * u + m12 * v + m13 * r, m21 * u + m22 * v + m23 * r
-            ex, ey = a11 * ur + a12 * vr + a13 * r, a21 * ur + a22 * vr + a23 * r
-            cor = [-r * (ay + ey), r * (ax + ex), u * ay - v * ax + ur * ey - vr * ex]
-        else:
-            cor = [0.0, 0.0, 0.0]
-        if self.relative_inertia and (vcn != 0.0 or vce != 0.0):
-            # + M (omega x nu_c), omega x nu_c = (-r v_c, r u_c, 0): M nu_r_dot instead of M nu_dot
-            wx, wy = -r * (v - vr), r * (u - ur)
-            cor = [cc + ma * wx + mb * wy for cc, (ma, mb) in zip(cor, self._M_lin, strict=True)]
-        if tau_ext is not None:
-            cor = [c - te for c, te in zip(cor, tau_ext, strict=True)]
-        T, ndot = self._thrust_and_lag(n, n_cmd)
-        nur = [ur, vr, r]
-        nu_dot = K @ np.array([*T, *cor, *nur, abs(ur) * ur, abs(vr) * vr, abs(r) * r])
-        return np.array([c * u - s * v, s * u + c * v, r, *nu_dot.tolist(), *ndot])
-
-    def _rhs6(self, x: np.ndarray, n_cmd: list[float], vcn: float, vce: float,
-              tau_ext: list[float] | None, K: np.ndarray) -> np.ndarray:
-        _, _, _, phi, theta, psi, u, v, w, p, q, r, *n = x.tolist()
-        cphi, sphi = math.cos(phi), math.sin(phi)
-        cth, sth = math.cos(theta), math.sin(theta)
-        cpsi, spsi = math.cos(psi), math.sin(psi)
-        R11, R12, R13 = cpsi * cth, -spsi * cphi + cpsi * sth * sphi, spsi * sphi + cpsi * cphi * sth
-        R21, R22, R23 = spsi * cth, cpsi * cphi + sphi * sth * spsi, -cpsi * sphi + sth * spsi * cphi
-        R32, R33 = cth * sphi, cth * cphi
-        t = (sphi * q + cphi * r) / cth
-        eta_dot = [
-            R11 * u + R12 * v + R13 * w,
-            R21 * u + R22 * v + R23 * w,
-            -sth * u + R32 * v + R33 * w,
-            p + t * sth,
-            cphi * q - sphi * r,
-            t,
-        ]
-        rel = None  # M (omega x nu_c) with current_inertia: relative
-        # M_RB nu and M_A nu_r (the current has no angular part); zero without Coriolis terms.
-        if self.coriolis:
-            a1, a2, a3, b1, b2, b3, e1, e2, e3, f1, f2, f3 = (self._M_stack @ x[6:12]).tolist()
-        else:
-            a1 = a2 = a3 = b1 = b2 = b3 = e1 = e2 = e3 = f1 = f2 = f3 = 0.0
-        if vcn != 0.0 or vce != 0.0:
-            uc, vc, wc = R11 * vcn + R21 * vce, R12 * vcn + R22 * vce, R13 * vcn + R23 * vce
-            if self.coriolis:
-                mc = [ra * uc + rb * vc + rc * wc for ra, rb, rc in self._MA_lin]
-                e1, e2, e3 = e1 - mc[0], e2 - mc[1], e3 - mc[2]
-                f1, f2, f3 = f1 - mc[3], f2 - mc[4], f3 - mc[5]
-            ur, vr, wr = u - uc, v - vc, w - wc
-            if self.relative_inertia:  # + M (omega x nu_c): M nu_r_dot instead of M nu_dot
-                wx, wy, wz = q * wc - r * vc, r * uc - p * wc, p * vc - q * uc
-                rel = [ma * wx + mb * wy + mc_ * wz for ma, mb, mc_ in self._M_lin]
-        else:
-            ur, vr, wr = u, v, w
-        # C(nu) nu = [nu2 x a; nu1 x a + nu2 x b] with [a; b] = M nu (Fossen's m2c, as cross products).
-        s1, s2, s3 = a1 + e1, a2 + e2, a3 + e3
-        t1, t2, t3 = b1 + f1, b2 + f2, b3 + f3
-        wb, gx, gy, gz = self._g6
-        force = [
-            q * s3 - r * s2 + wb * sth,
-            r * s1 - p * s3 - wb * R32,
-            p * s2 - q * s1 - wb * R33,
-            v * a3 - w * a2 + vr * e3 - wr * e2 + q * t3 - r * t2 - gy * R33 + gz * R32,
-            w * a1 - u * a3 + wr * e1 - ur * e3 + r * t1 - p * t3 + gz * sth + gx * R33,
-            u * a2 - v * a1 + ur * e2 - vr * e1 + p * t2 - q * t1 - gx * R32 - gy * sth,
-        ]
-        if rel is not None:
-            force = [f + m for f, m in zip(force, rel, strict=True)]
-        if tau_ext is not None:
-            force = [c - te for c, te in zip(force, tau_ext, strict=True)]
-        T, ndot = self._thrust_and_lag(n, n_cmd)
-        z = np.array(
-            [*T, *force, ur, vr, wr, p, q, r, abs(ur) * ur, abs(vr) * vr, abs(wr) * wr, abs(p) * p,
-             abs(q) * q, abs(r) * r]
-        )
-        return np.array([*eta_dot, *(K @ z).tolist(), *ndot])
-
     def rk4(self, x: np.ndarray, n_cmd: list[float], dt: float, steps: int = 1,
             vc_north: float = 0.0, vc_east: float = 0.0, tau_ext: list[float] | None = None,
             K: np.ndarray | None = None) -> np.ndarray:
-        """``steps`` fixed RK4 steps of size dt with inputs held; angles wrapped after each step."""
-        f = self._rhs6 if self.dof == 6 else self._rhs3
-        K = self._K if K is None else K
-        h2, h6 = 0.5 * dt, dt / 6.0
-        for _ in range(steps):
-            k1 = f(x, n_cmd, vc_north, vc_east, tau_ext, K)
-            k2 = f(x + h2 * k1, n_cmd, vc_north, vc_east, tau_ext, K)
-            k3 = f(x + h2 * k2, n_cmd, vc_north, vc_east, tau_ext, K)
-            k4 = f(x + dt * k3, n_cmd, vc_north, vc_east, tau_ext, K)
-            x = x + h6 * (k1 + k4 + 2.0 * (k2 + k3))
-            for i in self.angle_index:
-                a = x[i]
-                if a > _PI or a <= -_PI:
-                    x[i] = wrap_angle(a)
-        return x
+        """``steps`` fixed RK4 steps of size dt with inputs held; angles wrapped after each step
+        (one compiled call; ``x`` is not modified, the new state is returned)."""
+        p = self.kernel_params
+        ext = self._no_ext if tau_ext is None else np.asarray(tau_ext, dtype=float)
+        out = np.empty(self.n_states)
+        rigid_body.rk4(np.asarray(x, dtype=float), np.asarray(n_cmd, dtype=float), float(dt), int(steps),
+                       float(vc_north), float(vc_east), ext, tau_ext is not None, p.K if K is None else K,
+                       p.MS, p.MAL, p.ML, p.g6, p.th, p.flags, p.angle_index, out)
+        return out
 
     # -- readable reference form and energy ----------------------------------------------------
     def initial_state(self, eta: np.ndarray, nu: np.ndarray, n: np.ndarray | None = None) -> np.ndarray:

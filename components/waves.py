@@ -42,6 +42,7 @@ import math
 
 import numpy as np
 
+from .kernels import waves as wave_kernel
 from .vessel_spec import VesselSpec
 
 G = 9.81  # m/s^2
@@ -115,7 +116,8 @@ class WaveField:
 
     def elevation(self, t: float, north: float = 0.0, east: float = 0.0) -> float:
         """Surface elevation (m, up) at time t above the horizontal position (north, east)."""
-        return float(self.amp @ np.cos(self._theta(t, north, east)))
+        return wave_kernel.elevation(float(t), float(north), float(east), self.omega, self.k, self.phase,
+                                     self.amp, self._cd, self._sd)
 
     def acceleration(self, t: float, north: float, east: float, down: float) -> tuple[float, float, float]:
         """Undisturbed water-particle acceleration in NED (m/s^2) at a point ``down`` below the surface."""
@@ -146,26 +148,15 @@ class WaveLoad:
     def __init__(self, vessel: VesselSpec, field: WaveField) -> None:
         self.field = field
         self.dof = vessel.dof
-        self.W = load_matrix(vessel)
+        self.W = np.ascontiguousarray(load_matrix(vessel))
 
     def force(self, t: float, eta: np.ndarray | list[float]) -> list[float]:
         """Body-frame generalised wave force at time t for position/attitude ``eta``."""
         if self.field.hs == 0.0:
             return [0.0] * self.dof
-        if self.dof == 6:
-            n, e, d, phi, theta, psi = (float(v) for v in eta[:6])
-            an, ae, ad = self.field.acceleration(t, n, e, d)
-            cf, sf, ct, st = math.cos(phi), math.sin(phi), math.cos(theta), math.sin(theta)
-            cp, sp = math.cos(psi), math.sin(psi)
-            # a_b = R^T a_ned (rows of R^T are the columns of R, zyx convention)
-            a_b = np.array([
-                cp * ct * an + sp * ct * ae - st * ad,
-                (-sp * cf + cp * st * sf) * an + (cp * cf + sf * st * sp) * ae + ct * sf * ad,
-                (sp * sf + cp * cf * st) * an + (-cp * sf + st * sp * cf) * ae + ct * cf * ad,
-            ])
-        else:
-            n, e, psi = (float(v) for v in eta[:3])
-            an, ae, _ = self.field.acceleration(t, n, e, 0.0)
-            c, s = math.cos(psi), math.sin(psi)
-            a_b = np.array([c * an + s * ae, -s * an + c * ae])
-        return (self.W @ a_b).tolist()
+        # a_b = R^T a_ned of the particle acceleration (``WaveField.acceleration``), then W a_b: compiled
+        f = self.field
+        out = np.empty(self.dof)
+        wave_kernel.force(float(t), np.ascontiguousarray(eta, dtype=float), self.dof, f.omega, f.k, f.phase,
+                          f._acc_amp, f._cd, f._sd, self.W, out)
+        return out.tolist()

@@ -80,7 +80,7 @@ def fmu_guid(vessel: str, kind: str, digest: str) -> str:
 
 # What each FMU kind needs from its host's Python (the bundled packages import these). Ranges:
 # the oldest versions tested here, below the next major release. The allocator alone needs daqp.
-_COMMON = {"numpy": ">=1.26,<3", "pyyaml": ">=6,<7"}
+_COMMON = {"numpy": ">=1.26,<3", "pyyaml": ">=6,<7", "numba": ">=0.60,<1"}
 REQUIREMENTS: dict[str, dict[str, str]] = {
     "plant": _COMMON,
     "observer": {**_COMMON, "scipy": ">=1.11,<2"},
