@@ -42,6 +42,9 @@ SLOW = {
     "test_export.py": {"test_exported_files_run_alike_in_libcosim_and_ecos"},
     "test_coupling.py": {"test_seafmu_jacobi_libcosim_and_ecos_agree"},
     "test_libcosim_fmus.py": {"test_libcosim_runs_the_four_fmus_and_agrees_with_seafmu"},
+    "test_testplan.py": {"test_hardware_yaw_trial_over_ptys", "test_supply_recovers_published_damping",
+                         "test_minerva2_identification_on_short_trials"},
+    "test_thruster_loss.py": {"test_lost_thruster_located_in_a_hardware_recording"},
 }
 
 
