@@ -69,7 +69,7 @@ def _plant_log(tmp: Path, vessel: str, seed: int, efficiency: dict[int, float], 
     params = {f"thruster_efficiency_{i}": e for i, e in efficiency.items()}
     data, _ = simulate_maneuver(spec, duration=duration, dt=0.05, seed=seed, plant_params=params)
     data = add_sensor_noise(data, spec, 1.0, seed=seed)
-    return csv_trial(write_maneuver_csv(data, tmp / f"log{seed}.csv"), vessel)
+    return csv_trial(write_maneuver_csv(data, tmp / f"log{seed}.csv", per_thruster=True), vessel)
 
 
 # Each case: the lost thruster is drawn from the seed (not chosen by hand), at one of two efficiencies.
@@ -99,7 +99,9 @@ def test_clean_log_names_no_thruster(tmp_path: Path) -> None:
     d = diagnose(_plant_log(tmp_path, "minerva2", 21, {}))
     assert d.effect == "none", d.evidence
     cand = next(c for c in d.candidates if c.effect == "thruster_loss")
-    assert cand.fit is not None and not cand.accepted
+    assert not cand.accepted
+    # every thruster was tried: the best one is either rejected by the rule or within 5 % of nominal
+    assert cand.fit is not None or "by less than 0.05" in cand.reason, cand.reason
 
 
 def test_efficiency_written_back_and_replay_improves(tmp_path: Path) -> None:

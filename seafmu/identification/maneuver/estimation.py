@@ -389,7 +389,7 @@ def _output_error_held(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | N
     # DOFs whose motion is below the sensor noise keep their damping (the start's, else the vessel
     # file's): a log that barely moves them (roll and pitch under DP) cannot tell their damping,
     # and a free value there wanders to an unstable model
-    fl = excited_dofs(prep.nu_raw, vessel)
+    fl = excited_dofs(prep.nu_raw, vessel) or list(range(d))  # none excited: nothing to prefer
     held = [i for i in range(d) if i not in fl]
     for i in held:
         DL0[i, i] = (start or {}).get(f"D_L[{i},{i}]", plant["D_L"][i, i])

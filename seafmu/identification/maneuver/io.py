@@ -366,14 +366,16 @@ def _thrust_problems(tau_raw: np.ndarray, cols: list[str], vessel: VesselSpec,
 
 
 
-def write_maneuver_csv(data: ManeuverData, path: Path, provenance: str = "") -> Path:
+def write_maneuver_csv(data: ManeuverData, path: Path, provenance: str = "",
+                       per_thruster: bool = False) -> Path:
     """The log as a CSV that ``load_maneuver_csv`` reads without a column map (SI units):
-    time, eta names, nu names, tau_X ..., and thrust_1 ... when the log has per-thruster thrust
-    (then the reader takes tau from them, through the vessel file; one '#' provenance line first)."""
+    time, eta names, nu names, tau_X ... (one '#' provenance line first). ``per_thruster`` also
+    writes thrust_1 ... (the log's per-thruster thrust, as logged): the reader then takes tau from
+    them through the vessel file, and a lost thruster can be located (``thruster_loss``)."""
     d = data.dof
     names = ["time", *ETA_NAMES[d], *NU_NAMES[d], *(f"tau_{n}" for n in TAU_NAMES[d])]
     cols = [data.t, data.eta, data.nu, data.tau]
-    if data.thrust is not None:
+    if per_thruster and data.thrust is not None:
         names += [f"thrust_{i + 1}" for i in range(data.thrust.shape[1])]
         cols.append(data.thrust)
     table = np.column_stack(cols)
