@@ -474,6 +474,8 @@ def summary_lines(obj: Identification | Diagnosis) -> list[str]:
              f"  baseline: {params(b)}; held-out NRMSE {_g(b.nrmse_validation)}, AIC {_g(b.aic, 6)}",
              f"  cause: {' + '.join(d.effects) or d.effect} — {d.evidence}"]
     for a in d.alternatives[1:]:
+        if a.weight < 0.01:
+            continue
         lines.append(f"  also credible: {a.candidate.effect} (Akaike weight {a.weight:.3f}, held-out ratio "
                      f"{_g(a.candidate.ratio)}, dAIC {_g(a.delta_aic)} from the best)")
         if a.experiment:
