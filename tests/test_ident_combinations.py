@@ -148,3 +148,23 @@ def test_clean_data_stay_silent_with_the_combination_search() -> None:
         assert d.effect == "none", d.evidence
         assert any(c.size > 1 for c in d.candidates) or kind == "decay2"
         assert d.to_json()["cause"]["alternatives"] == []
+
+
+def test_aliased_explanations_are_stated_as_about_equal_with_the_experiment_between() -> None:
+    """A force-speed table measured ahead only, with a steady force on top of quadratic drag: on
+    one-directional speeds a constant force and Coulomb friction are the same model. The diagnosis
+    names one beside the quadratic drag and states the other at about equal weight, and the
+    experiment that tells them apart is running astern (where friction changes sign)."""
+    rng = np.random.default_rng(4)
+    v = np.linspace(0.1, 1.0, 16)
+    force = 15.6 * v + 42.7 * v * np.abs(v) + 2.0 + rng.normal(0.0, 0.15, v.size)
+    trial = make_trial("static", [Run("table", force, u=v)], dof="surge", table="force_speed",
+                       baseline="linear", name="drag_plus_offset")
+    d = diagnose(trial)
+    assert d.effects[0] == "quadratic_damping" and len(d.effects) == 2, d.evidence
+    other = {"constant_force", "coulomb_friction"} - set(d.effects)
+    assert len(other) == 1
+    alt = next(a for a in d.alternatives if set(a.candidate.effects) == {"quadratic_damping", *other})
+    assert 0.3 < alt.weight < 0.7  # about equal: the data cannot tell them apart
+    assert alt.experiment is not None and alt.experiment["input"] < 0  # astern
+    assert alt.experiment["difference_over_noise"] > 10

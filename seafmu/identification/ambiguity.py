@@ -2,8 +2,8 @@
 weights), and which experiment would tell them apart (where their predictions differ most,
 against the noise).
 
-A table's candidates are compared over its input range, extended by a fifth beyond the largest
-measured input; a time series' over new runs of the same kind (a step from rest to each of a grid
+A table's candidates are compared over both directions of its input, to a fifth beyond the
+largest measured |input|; a time series' over new runs of the same kind (a step from rest to each of a grid
 of command levels, or a release from each of a grid of initial speeds or angles), simulated by
 both fitted models. The experiment named is the one whose predicted difference is largest; it is
 worth running when that difference is several times the noise of the measurement (the residual
@@ -62,7 +62,8 @@ def _table(trial: Trial, best: FitResult, other: FitResult, bn: str, on: str,
     x = np.asarray(best.extras["x"], dtype=float)
     lo, hi = float(np.min(x)), float(np.max(x))
     span = max(abs(lo), abs(hi))
-    grid = np.linspace(min(lo, 0.0) - (0.2 * span if lo < 0 else 0.0), hi + 0.2 * span if hi > 0 else hi, 601)
+    # both directions, a fifth beyond the largest |input|: running astern is often the experiment
+    grid = np.linspace(-1.2 * span, 1.2 * span, 601)
     with np.errstate(all="ignore"):
         d = np.abs(_predict_table(best, grid) - _predict_table(other, grid))
     d = np.where(np.isfinite(d), d, 0.0)
