@@ -10,6 +10,12 @@ Acceptance rule (all must hold; documented in docs/identification.md):
     drops by more than noise explains: a likelihood-ratio margin on data the fit never saw),
     dAIC = AIC_ext - AIC_base <= -10 on the fitting data,
     95 % CI of the effect parameter excludes its "effect absent" value.
+
+Then combinations of effects (``search_combinations``): each must pass the same rule and beat each
+of its sub-models by its margins; the cause is the smallest, most specific explanation the data
+support (``choose``), and every other one that passes is reported with its Akaike weight and the
+experiment that would tell it apart (``alternatives``, ``ambiguity.py``). An extension whose claim
+the data contradict (``check_claims``) is rejected.
 """
 
 from __future__ import annotations
@@ -17,6 +23,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
+from itertools import zip_longest
 from typing import Any
 
 import numpy as np
@@ -495,7 +502,7 @@ def _interleave(screened: Screened, by_singles: list[tuple[Candidate, Candidate]
     second = [info[frozenset(a.effects + b.effects)] for a, b in by_singles
               if frozenset(a.effects + b.effects) in info]
     out, seen = [], set()
-    for pair in (x for both in zip(screened, second, strict=False) for x in both):
+    for pair in (x for both in zip_longest(screened, second) for x in both if x is not None):
         key = frozenset(e for p in pair[0] for e in p.effects)
         if key not in seen:
             seen.add(key)
