@@ -228,6 +228,7 @@ class ObserverBlock(Block):
         self.P = np.diag(p0)
         self._last_count = np.zeros(len(self._sensors))
         self._initialised = np.zeros(d, dtype=bool)  # eta states set from a first sample
+        self._all_initialised = False  # every eta state set (the usual case: one test per update)
         self.n_rejected = 0  # rejections by either gate, any sensor
         self.pos_rejected = 0  # rejected position fixes
         self.pos_resets = 0  # position resets after too many consecutive rejections
@@ -297,7 +298,7 @@ class ObserverBlock(Block):
 
     def _update(self, z: np.ndarray, ch: _Channels) -> bool:
         """Measurement update with one sensor's channels; False if rejected by the gate."""
-        if ch.has_eta and not self._initialised[ch.eta_idx].all():
+        if ch.has_eta and not self._all_initialised and not self._initialised[ch.eta_idx].all():
             return self._first_fix(z, ch)
         if ch.wave and self.nw:
             return self._update_wave(z, ch)
@@ -421,6 +422,7 @@ class ObserverBlock(Block):
         self.P[:, fi] = 0.0
         self.P[fi, fi] = ch.var[fresh] * self._r_scale
         self._initialised[fi] = True
+        self._all_initialised = bool(self._initialised.all())
         self._wrap()
         rest = ~fresh
         if rest.any():  # channels of the same sensor already initialised, or velocities

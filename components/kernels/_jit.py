@@ -32,7 +32,7 @@ def _default_cache_dir() -> str:
 os.environ.setdefault("NUMBA_CACHE_DIR", _default_cache_dir())
 
 import numba  # noqa: E402  (after NUMBA_CACHE_DIR: numba reads it at import)
-from numba.core import caching  # noqa: E402
+from numba.core import caching, environment  # noqa: E402
 
 
 def _sources_digest() -> str:
@@ -98,6 +98,43 @@ class _ContentLocator(caching._CacheLocator):
 
 if _ContentLocator not in caching.CacheImpl._locator_classes:
     caching.CacheImpl._locator_classes.insert(0, _ContentLocator)
+
+# A cached kernel carries its runtime environment as (module name, constants); numba rebuilds it by
+# importing that module. An entry compiled by another copy of these kernels (an FMU's bundle,
+# ``seafmu_fmu_<hash>.components.kernels``, whose folder is gone) names a module this process
+# cannot import. The sources are the same (the cache folder is keyed by their digest), so this
+# copy's module of the same file stands in for it.
+_PACKAGE = __name__.rpartition(".")[0]  # this copy's "<...>.components.kernels"
+
+
+def _install_env_fallback() -> None:
+    """Wrap numba's environment rebuild once per process; every copy adds its package name."""
+    packages: list[str] = getattr(environment, "_seafmu_kernel_packages", [])
+    if _PACKAGE not in packages:
+        packages.insert(0, _PACKAGE)
+    if getattr(environment, "_seafmu_kernel_packages", None) is not None:
+        return
+    environment._seafmu_kernel_packages = packages  # type: ignore[attr-defined]
+    numba_rebuild = environment._rebuild_env
+
+    def rebuild(modname: str, consts: Any, env_name: str) -> Any:
+        try:
+            return numba_rebuild(modname, consts, env_name)
+        except ImportError:
+            _, sep, tail = modname.rpartition(".kernels.")
+            if not sep:
+                raise
+            for pkg in packages:
+                try:
+                    return numba_rebuild(f"{pkg}.{tail}", consts, env_name)
+                except ImportError:
+                    continue
+            raise
+
+    environment._rebuild_env = rebuild
+
+
+_install_env_fallback()
 
 
 def kernel(fn: Callable[..., Any]) -> Callable[..., Any]:

@@ -122,12 +122,28 @@ def _tail(
         ni = x[2 * dof + i]
         k = th[0, i] if ni >= 0.0 else th[1, i]
         z[i] = k * ni * abs(ni) if quadratic else k * ni
+    # Each row summed left to right as before; the rows' chains interleaved (one pass over z), so
+    # the additions of different rows overlap instead of waiting for each other.
     nz = z.shape[0]
-    for i in range(dof):
-        s = 0.0
+    if dof == 6:
+        s0 = s1 = s2 = s3 = s4 = s5 = 0.0
         for j in range(nz):
-            s += K[i, j] * z[j]
-        out[dof + i] = s
+            zj = z[j]
+            s0 += K[0, j] * zj
+            s1 += K[1, j] * zj
+            s2 += K[2, j] * zj
+            s3 += K[3, j] * zj
+            s4 += K[4, j] * zj
+            s5 += K[5, j] * zj
+        out[6], out[7], out[8], out[9], out[10], out[11] = s0, s1, s2, s3, s4, s5
+    else:
+        s0 = s1 = s2 = 0.0
+        for j in range(nz):
+            zj = z[j]
+            s0 += K[0, j] * zj
+            s1 += K[1, j] * zj
+            s2 += K[2, j] * zj
+        out[3], out[4], out[5] = s0, s1, s2
     for i in range(m):
         out[2 * dof + i] = (ncmd[i] - x[2 * dof + i]) * th[2, i]
 
