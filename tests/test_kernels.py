@@ -893,3 +893,55 @@ def test_pinv_step_is_its_parts(vessel) -> None:
                 Tc,
             )
             assert not y2.any()
+
+
+_COMPILE_IN_COPY = """
+import sys
+sys.path.insert(0, sys.argv[1])
+import numpy as np
+from copied.kernels import ekf
+x = np.zeros(3)
+print(ekf.innovation(np.ones(2), x, np.array([0, 2]), np.array([False, True])).tolist())
+"""
+_LOAD_HERE = """
+import numpy as np
+from seafmu.components.kernels import ekf
+x = np.zeros(3)
+y = ekf.innovation(np.ones(2), x, np.array([0, 2]), np.array([False, True]))
+st = ekf.innovation.stats
+print(y.tolist(), sum(st.cache_hits.values()), sum(st.cache_misses.values()))
+"""
+
+
+def test_a_kernel_compiled_by_an_fmus_copy_loads_from_the_cache_here(tmp_path) -> None:
+    """An FMU bundles the kernels under another package name and its folder is gone after the run;
+    what it compiled into the shared cache still loads in the installed package (no recompile)."""
+    import shutil
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from seafmu.components import kernels
+
+    root = tmp_path / "bundle"
+    shutil.copytree(
+        Path(kernels.__file__).parent,
+        root / "copied" / "kernels",
+        ignore=shutil.ignore_patterns("__pycache__"),
+    )
+    (root / "copied" / "__init__.py").write_text("")
+    env = {**__import__("os").environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+    first = subprocess.run(
+        [sys.executable, "-c", _COMPILE_IN_COPY, str(root)],
+        env=env,
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    shutil.rmtree(root)  # as an unpacked FMU at the end of a run
+    second = subprocess.run(
+        [sys.executable, "-c", _LOAD_HERE], env=env, capture_output=True, text=True, check=True
+    )
+    values, hits, misses = second.stdout.split("]")[0] + "]", *second.stdout.split("]")[1].split()
+    assert values == first.stdout.strip()
+    assert (int(hits), int(misses)) == (1, 0)  # loaded, not compiled again

@@ -131,6 +131,10 @@ def _install_env_fallback() -> None:
                     continue
             raise
 
+    # Pickled by reference as numba's own function (the cache refers to it by that name; pickled
+    # by value it would carry this copy's package name into the cache).
+    rebuild.__module__ = environment.__name__
+    rebuild.__qualname__ = rebuild.__name__ = "_rebuild_env"
     environment._rebuild_env = rebuild
 
 
