@@ -90,7 +90,7 @@ def test_small_study_on_local_cluster(small: tuple[Path, Done]) -> None:
     assert (ok["pass: north error"] == (ok["check: north error"] <= 0.06)).all()
     # the sampled speeds span the interval, each with both seeds
     assert ok.groupby("plant.current_speed")["seed"].apply(sorted).tolist() == [[1, 2], [1, 2]]
-    series = pd.read_parquet(folder / "out" / "timeseries" / f"case_{int(ok['case'].iloc[0]):05d}.parquet")
+    series = pd.read_parquet(folder / "out" / ok["timeseries"].iloc[0])
     assert list(series.columns) == ["time", "plant.north"] and len(series) == 81
     report = (folder / "out" / "report.md").read_text()
     for part in ("## Pass rate", "Wilson interval", "distributions.png", "inputs_vs_checks.png", "Spearman",
@@ -135,15 +135,16 @@ def test_worst_case_reproduces_exactly(small: tuple[Path, Done]) -> None:
 
 
 def test_resume_after_interrupt(tmp_path: Path, built_fmus: object) -> None:
-    """SIGINT stops the study cleanly (exit 130, rows kept, cluster closed); the rerun runs only
-    the cases that had not finished and leaves the finished rows untouched."""
+    """SIGINT stops the study cleanly (exit 130, rows kept, cluster closed); the rerun — of the
+    study with a value added in front, which renumbers every case — runs only the cases that had
+    not finished and leaves the finished rows untouched; a third run has nothing left to do."""
     study = """name: resume
 scenario: base.yaml
 vary:
-  plant.current_speed: {grid: {start: 0.0, stop: 0.25, num: 6, }, unit: m/s}
+  plant.current_speed: {values: [0.0, 0.05, 0.1, 0.15, 0.2, 0.25], unit: m/s}
 seeds: [4]
 """
-    _write(tmp_path, 20, study)
+    _write(tmp_path, 12, study)
     rows = tmp_path / "out" / "cases"
     proc = subprocess.Popen([sys.executable, "-m", "seafmu.cli", "sweep", "study.yaml", "--workers", "2",
                              "--out", "out", "-q"], cwd=tmp_path, stdout=subprocess.PIPE,
@@ -156,18 +157,21 @@ seeds: [4]
     assert proc.returncode == 130, err
     assert "sweep interrupted (SIGINT)" in err
     first = {p.name: (p.stat().st_mtime_ns, p.read_bytes()) for p in rows.glob("*.json")}
-    assert 2 <= len(first) < 6, "the interrupt came too late to test a resume"
-    assert len(pd.read_parquet(tmp_path / "out" / "cases.parquet")) == len(first)
+    k = len(first)
+    assert 2 <= k < 6, "the interrupt came too late to test a resume"
+    assert len(pd.read_parquet(tmp_path / "out" / "cases.parquet")) == k
+    (tmp_path / "study.yaml").write_text(study.replace("[0.0, 0.05", "[0.3, 0.0, 0.05"))
     again = _sweep(["study.yaml", "--workers", "2", "--out", "out", "-q"], tmp_path)
     assert again.returncode in (0, 1), again.stderr
-    assert f"6 of 6 cases finished ({len(first)} before, {6 - len(first)} now" in again.stdout
+    assert f"7 of 7 cases finished ({k} before, {7 - k} now" in again.stdout, again.stdout
     for p in rows.glob("*.json"):
         if p.name in first:
             assert (p.stat().st_mtime_ns, p.read_bytes()) == first[p.name], f"{p.name} was redone"
     frame = pd.read_parquet(tmp_path / "out" / "cases.parquet")
-    assert sorted(frame["case"]) == list(range(6))
+    assert frame["case"].tolist() == list(range(7))
+    assert frame["plant.current_speed"].tolist() == [0.3, 0.0, 0.05, 0.1, 0.15, 0.2, 0.25]
     third = _sweep(["study.yaml", "--out", "out", "-q"], tmp_path)  # nothing left: no cluster, nothing run
-    assert "(6 before, 0 now)" in third.stdout
+    assert "(7 before, 0 now)" in third.stdout
 
 
 @pytest.mark.parametrize("study, expected", [

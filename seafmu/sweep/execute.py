@@ -5,7 +5,7 @@
   only, no dashboard. ``--scheduler tcp://HOST:8786`` (or ``DASK_SCHEDULER_ADDRESS``) connects to
   an existing cluster instead (``dask scheduler`` / ``dask worker``, dask-jobqueue on HPC); its
   workers need seafmu installed, the FMUs built and the scenario files at the same paths.
-- Study folder: ``cases/case_<n>.json`` is written (atomically) as each case finishes, holding the
+- Study folder: ``cases/<key>.json`` is written (atomically) as each case finishes, named by the
   case's key (a hash of the base scenario, its overrides, seed and what is computed): a rerun of
   the same study into the same folder skips every case whose row is there with the same key, so
   nothing is lost and nothing done twice; a changed study reruns only the cases it changed.
@@ -82,7 +82,9 @@ class StudyFolder:
             self._fd = None
 
     def row_path(self, case: Case) -> Path:
-        return self.path / ROWS / f"case_{case.index:05d}.json"
+        """Named by the case's key, not its number: a study that gains or loses a grid value renumbers
+        its cases, and each finished one is still found."""
+        return self.path / ROWS / f"{case.key}.json"
 
     def finished(self, study: Study) -> dict[int, dict[str, Any]]:
         """Rows already in the folder for these very cases (same key); others are ignored."""
@@ -94,7 +96,7 @@ class StudyFolder:
             except (OSError, ValueError):
                 continue
             if isinstance(row, dict) and row.get("key") == c.key:
-                done[c.index] = row
+                done[c.index] = {**row, "case": c.index}
         return done
 
     def write_row(self, case: Case, row: dict[str, Any]) -> None:
@@ -103,7 +105,7 @@ class StudyFolder:
             import pandas as pd
 
             (self.path / SERIES).mkdir(exist_ok=True)
-            with atomic_path(self.path / SERIES / f"case_{case.index:05d}.parquet") as tmp:
+            with atomic_path(self.path / SERIES / f"{case.key}.parquet") as tmp:
                 pd.DataFrame(series).to_parquet(tmp, engine="pyarrow", index=False)
         atomic_write_text(self.row_path(case), json.dumps(row, default=_plain) + "\n")
 
@@ -128,6 +130,8 @@ def cases_frame(study: Study, rows: dict[int, dict[str, Any]]) -> Any:
         rec["sample"] = c.sample
         rec["overrides"] = " ".join(c.overrides)
         rec["command"] = c.command(study.scenario_arg)
+        if study.model.keep:
+            rec["timeseries"] = f"{SERIES}/{c.key}.parquet"
         recs.append(rec)
     frame = pd.DataFrame.from_records(recs)
     if frame.empty:

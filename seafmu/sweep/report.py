@@ -404,7 +404,7 @@ def write_study_report(study: Study, outcome: Any, out: Path) -> tuple[Path, lis
     lines += ["## Files", "", "- `cases.parquet`: one row per case: inputs, seed, each check's value "
               "(`check: NAME`) and result (`pass: NAME`), metrics, wall time, status, error, command",
               "- `cases/`: the row of each finished case (a rerun skips them)",
-              *(["- `timeseries/case_NNNNN.parquet`: the kept signals of each case"]
+              *(["- `timeseries/<key>.parquet`: the kept signals of each case (column `timeseries`)"]
                 if study.model.keep else []),
               "- `study.yaml`: the study as run", ""]
     path = out / "report.md"

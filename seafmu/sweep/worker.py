@@ -90,6 +90,7 @@ def run_case(task: dict[str, Any]) -> dict[str, Any]:
                 row[METRIC + m["name"]] = math.nan
                 row["error"] = row["error"] or f"metric {m['name']}: {exc}"
         row["simulated_s"] = float(result.t_end or 0.0)
+        row["loop_time_s"] = float(result.wall_time)  # the master loop alone: a bare run's time
         row["realtime_factor"] = float(result.realtime_factor)
         if task["keep"]:
             row["_series"] = {"time": np.asarray(result.time),
