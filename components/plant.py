@@ -233,26 +233,10 @@ class PlantBlock(Block):
     def _course_sog(self) -> list[float]:
         """Course and speed over ground: what a surface vessel's crab-angle compensation aims at."""
         d = self.vessel.dof
-        vn, ve = self._horizontal_velocity()
+        vn, ve = self._model.horizontal_velocity(self._x)
         sog = math.hypot(vn, ve)
         course = math.atan2(ve, vn) if sog > 1e-6 else float(self._x[d - 1])
         return [course, sog]
-
-    def _horizontal_velocity(self) -> tuple[float, float]:
-        """(north, east) rates: the first two rows of J(eta) nu, in floats (R(Theta) or R(psi))."""
-        if self.vessel.dof == 6:
-            _, _, _, phi, theta, psi, u, v, w = self._x[:9].tolist()
-            cphi, sphi = math.cos(phi), math.sin(phi)
-            cth, sth = math.cos(theta), math.sin(theta)
-            cpsi, spsi = math.cos(psi), math.sin(psi)
-            vn = (cpsi * cth * u + (-spsi * cphi + cpsi * sth * sphi) * v
-                  + (spsi * sphi + cpsi * cphi * sth) * w)
-            ve = (spsi * cth * u + (cpsi * cphi + sphi * sth * spsi) * v
-                  + (-cpsi * sphi + sth * spsi * cphi) * w)
-            return vn, ve
-        _, _, psi, u, v = self._x[:5].tolist()
-        c, s = math.cos(psi), math.sin(psi)
-        return c * u - s * v, s * u + c * v
 
     def output(self) -> np.ndarray:
         return self._y.copy()

@@ -142,6 +142,23 @@ class VesselModel:
                        p.MS, p.MAL, p.ML, p.g6, p.th, p.flags, p.angle_index, out)
         return out
 
+    def horizontal_velocity(self, x: np.ndarray) -> tuple[float, float]:
+        """(north, east) rates of state x: the first two rows of J(eta) nu, in floats (R(Theta) or
+        R(psi)); the plant's course and speed over ground."""
+        if self.dof == 6:
+            _, _, _, phi, theta, psi, u, v, w = x[:9].tolist()
+            cphi, sphi = math.cos(phi), math.sin(phi)
+            cth, sth = math.cos(theta), math.sin(theta)
+            cpsi, spsi = math.cos(psi), math.sin(psi)
+            vn = (cpsi * cth * u + (-spsi * cphi + cpsi * sth * sphi) * v
+                  + (spsi * sphi + cpsi * cphi * sth) * w)
+            ve = (spsi * cth * u + (cpsi * cphi + sphi * sth * spsi) * v
+                  + (-cpsi * sphi + sth * spsi * cphi) * w)
+            return vn, ve
+        _, _, psi, u, v = x[:5].tolist()
+        c, s = math.cos(psi), math.sin(psi)
+        return c * u - s * v, s * u + c * v
+
     # -- readable reference form and energy ----------------------------------------------------
     def initial_state(self, eta: np.ndarray, nu: np.ndarray, n: np.ndarray | None = None) -> np.ndarray:
         n = np.zeros(self.m) if n is None else np.asarray(n, dtype=float)
