@@ -352,18 +352,31 @@ def cleanup_extracted() -> None:
         _extract_lock_fd = None
 
 
+_MODEL_DESCRIPTIONS: dict[tuple[str, int], Any] = {}
+
+
+def _model_description(fmu: Path) -> Any:
+    """The FMU's parsed modelDescription, once per file version and process (a sweep's worker runs
+    many cases on the same FMUs; the parse is a measurable part of setting up a case)."""
+    from fmpy import read_model_description
+
+    key = (str(fmu), fmu.stat().st_mtime_ns)
+    if key not in _MODEL_DESCRIPTIONS:
+        _MODEL_DESCRIPTIONS[key] = read_model_description(str(fmu))
+    return _MODEL_DESCRIPTIONS[key]
+
+
 class FmuUnit:
     """An FMU on fmpy's FMU2Slave, with preallocated ctypes buffers on the hot path."""
 
     paces_itself = False
 
     def __init__(self, inst: Instance, fmu_file: Path, in_names: list[str], log: list[str]) -> None:
-        from fmpy import read_model_description
         from fmpy.fmi2 import FMU2Slave, fmi2Real, fmi2ValueReference
 
         self.name = inst.name
         self.log = log
-        md = read_model_description(str(fmu_file))
+        md = _model_description(fmu_file)
         self._vars = {v.name: v for v in md.modelVariables}
         self.out_names = [v.name for v in md.modelVariables if v.causality == "output" and v.type == "Real"]
         # in value-reference order, so the FMU can take all its inputs as one slice
