@@ -122,6 +122,7 @@ class ControllerBlock(Block):
         self._stepped = False
         self._y = np.zeros(self._n_out)
         self._offset = np.zeros(d)  # bumpless transfer: decaying output offset after a mode switch
+        self._offset_on = False  # _offset has a non-zero entry (set by _blend)
         self._active: tuple[int, ...] | None = None  # the mode key the last step ran in
         # Setpoints latched at a mode switch (NaN = none; see _latched) and the last setpoint
         # inputs seen (a change releases the latch).
@@ -207,6 +208,7 @@ class ControllerBlock(Block):
                 self._offset[:] = 0.0
         else:
             self._offset[:] = 0.0
+        self._offset_on = bool(self._offset.any())
 
     def _integrate(self, h: float, e: np.ndarray, tau_unsat: np.ndarray, tau: np.ndarray,
                    Jt: np.ndarray | None) -> None:

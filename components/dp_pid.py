@@ -390,8 +390,8 @@ class DPPidController(ControllerBlock):
             eta_ref = self._latched(eta_ref)
         free = tab.free[mode]
         any_free = mode in tab.any_free
-        if not (switched or any_free or mode == MODE_WAYPOINT or self._latch_any) and self.ref.exact \
-                and not self._offset.any():
+        if not (switched or any_free or mode == MODE_WAYPOINT or self._latch_any or self._offset_on) \
+                and self.ref.exact:
             return self._held_step(h, u, eta, nu, eta_ref)
         d = self.dof
         Jm, eta_dot, e, tau_new = np.empty((d, d)), np.empty(d), np.empty(d), np.empty(d)
