@@ -306,6 +306,9 @@ def _run_in_process(
     events: list[Event],
     log_level: str,
 ) -> dict[str, np.ndarray]:
+    # Long because libcosim's execution, slaves, variable indices, manipulator and observer are one
+    # handle graph that must live in one frame: split up, each piece would pass the same six
+    # handles along and the order libcosim requires (add, connect, set, record, step) would blur.
     try:
         from libcosimpy import CosimLogging
         from libcosimpy._internal import get_last_error_message

@@ -567,6 +567,9 @@ def _stop_unit(u: Unit) -> None:
 
 def _loop(scenario: Scenario, units: list[Unit], mode: str, progress: bool, log: list[str],
           stop: StopRequest | None = None, sink: Sink | None = None) -> RunResult:
+    # Long because it is the co-simulation algorithm read in one place: wiring, initial values in
+    # causal order, the step loop (events, Gauss-Seidel or Jacobi, multirate, recording, stop
+    # requests) and the result; the hot loop's locals would otherwise travel through every call.
     # One flat "bus" of every output; inputs read slices of it through index arrays.
     slot: dict[tuple[str, str], int] = {}
     out_slices = []

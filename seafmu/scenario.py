@@ -516,6 +516,9 @@ def resolve(model: ScenarioModel, path: Path, labels: dict[str, str] | None = No
             seed: int | None = None) -> Scenario:
     """The validated model made into a runnable Scenario; ``labels`` name the ``--set`` that wrote
     a field in its messages; ``seed`` goes to every seed parameter."""
+    # Long because it resolves the scenario's fields in the order they depend on each other
+    # (vessel, FMUs, parameters with units and ranges, connections, events, checks, limits), each
+    # error naming its field; one flat sequence reads like the format's documentation.
     labels = labels or {}
     from seafmu.build import VESSELS
     from seafmu.components.vessel_spec import VesselFileError, bundled_vessels, load_vessel

@@ -6,9 +6,9 @@ Every .py file under components/, fmus/ and hardware/ is parsed (imports inside 
 package by the absolute name ``seafmu.<layer>`` (they import relatively, so the same files work as
 ``seafmu.components`` and under an FMU's per-build bundle name).
 
-A function over 80 lines in the lower layers, ``seafmu/build.py`` or ``seafmu/emulate.py`` says
-why in a comment ``# Long because ...`` right under its signature (or docstring), or in its
-docstring. ``python tests/test_layers.py`` lists every long function of the repository.
+A function over 80 lines anywhere in the package (components/, fmus/, hardware/, seafmu/) says
+why in a comment ``# Long because ...`` or ``# Over 80 lines: ...`` right under its signature (or
+docstring), or in its docstring. ``python tests/test_layers.py`` lists every long function of the repository.
 """
 
 from __future__ import annotations
@@ -102,18 +102,19 @@ def test_the_checker_sees_imports_inside_functions(tmp_path: Path) -> None:
 
 # -- long functions say why -----------------------------------------------------------------------
 LONG = 80  # lines, def to last line
-LONG_SCOPE = ("components", "fmus", "hardware", "seafmu/build.py", "seafmu/emulate.py")
-WHY = "long because"
+LONG_SCOPE = ("components", "fmus", "hardware", "seafmu")
+WHY = ("long because", "over 80 lines")
 
 
 def _explained(node: ast.FunctionDef | ast.AsyncFunctionDef, lines: list[str]) -> bool:
     """The docstring, or a comment between the signature and the first statement after the
     docstring, says why the function is long."""
-    if WHY in (ast.get_docstring(node) or "").lower():
+    doc = (ast.get_docstring(node) or "").lower()
+    if any(w in doc for w in WHY):
         return True
     body = node.body[1:] if ast.get_docstring(node) is not None and len(node.body) > 1 else node.body
     head = lines[node.lineno - 1 : body[0].lineno - 1]
-    return any(line.strip().lower().startswith("# " + WHY) for line in head)
+    return any(line.strip().lower().startswith(tuple("# " + w for w in WHY)) for line in head)
 
 
 def long_functions(paths: list[Path]) -> list[tuple[Path, str, int, bool]]:

@@ -73,6 +73,8 @@ def _decay_curve(r: Any) -> str:
 
 def write_report(res: Any, out: Path) -> Path:
     """report.md, one PNG per trial, summary.json."""
+    # Long because the report is written top to bottom as the reader sees it (results table, then
+    # each trial from measurement to coefficient); one sequence keeps the text in reading order.
     figs = _plot(res, out)
     v = res.vessel
     L: list[str] = [f"# Test plan: {v.name}", ""]
