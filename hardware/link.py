@@ -463,6 +463,12 @@ class HardwareLink:
         """The master's end of the run: ``close()``."""
         self.close()
 
+    def collect_log(self) -> None:
+        """The link writes its messages to the run's log as they happen; nothing is buffered."""
+
+    def step_error(self, what: str, exc: Exception) -> Exception:
+        return exc
+
     @property
     def closed(self) -> bool:
         return self._closed

@@ -227,6 +227,12 @@ class BlockUnit:
     def terminate(self) -> None:
         pass
 
+    def collect_log(self) -> None:
+        """A block raises at once; nothing is buffered."""
+
+    def step_error(self, what: str, exc: Exception) -> Exception:
+        return exc
+
 
 class _StatusError(RuntimeError):
     """An FMI call on the hot path returned discard, error or fatal."""
@@ -428,6 +434,9 @@ class FmuUnit:
         """Warnings and errors the FMU logged during a run that went on (e.g. discarded steps)."""
         self.log.extend(m for m in self._messages if m not in self.log)
 
+    def step_error(self, what: str, exc: Exception) -> Exception:
+        return self.error(what, exc)
+
     def initialize(self, values: np.ndarray) -> np.ndarray:
         """Inputs set in initialisation mode, then exit it: the FMU starts from upstream values."""
         self._call("setReal (initial inputs)", lambda: self.set_inputs(values))
@@ -553,8 +562,7 @@ def run(scenario: Scenario, mode: Mode = "fmu", progress: bool = True,
         return result
     finally:
         for u in units:
-            if isinstance(u, FmuUnit):
-                u.collect_log()
+            u.collect_log()
             _stop_unit(u)
 
 
@@ -720,9 +728,10 @@ def _loop(scenario: Scenario, units: list[Unit], mode: str, progress: bool, log:
                 except SimulationError:
                     raise
                 except Exception as exc:
-                    if isinstance(u, FmuUnit):
-                        raise u.error(f"step at t = {t:.3f} s", exc) from None
-                    raise
+                    err = u.step_error(f"step at t = {t:.3f} s", exc)
+                    if err is exc:
+                        raise
+                    raise err from None
                 step_time[u.name] += perf() - t0
                 steps[u.name] += 1
             k_done = k + 1

@@ -52,6 +52,16 @@ class Unit(Protocol):
 
     def terminate(self) -> None: ...
 
+    def collect_log(self) -> None:
+        """Copy the messages the unit buffered during a run that went on (an FMU's discarded steps)
+        into the run's log; a unit that logs as it goes has nothing to do."""
+        ...
+
+    def step_error(self, what: str, exc: Exception) -> Exception:
+        """The error to raise when ``what`` failed with ``exc``: an FMU names itself and adds what
+        its log said; others give ``exc`` back unchanged."""
+        ...
+
 
 class PacingStats(Protocol):
     def as_dict(self) -> dict[str, Any]: ...

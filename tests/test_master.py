@@ -122,3 +122,20 @@ def test_units_come_from_the_kind_registry_and_declare_pacing(monkeypatch) -> No
         assert "unknown unit kind 'nope'" in str(exc)
     else:
         raise AssertionError("an unknown kind must be refused")
+
+
+def test_every_unit_class_offers_the_whole_unit_protocol() -> None:
+    """The master asks units (never their class) to hand over logs and name their errors."""
+    import inspect
+
+    from seafmu.hardware.link import HardwareLink
+    from seafmu.master import BlockUnit, FmuUnit
+    from seafmu.unit import Unit
+
+    wanted = {n for n, v in vars(Unit).items() if inspect.isfunction(v) and not n.startswith("_")}
+    assert {"collect_log", "step_error", "do_step", "terminate"} <= wanted
+    for cls in (BlockUnit, FmuUnit, HardwareLink):
+        missing = sorted(n for n in wanted if not callable(getattr(cls, n, None)))
+        assert not missing, (cls.__name__, missing)
+    exc = ValueError("x")
+    assert BlockUnit.step_error(BlockUnit.__new__(BlockUnit), "step", exc) is exc
