@@ -25,10 +25,10 @@ from seafmu.components.block import full_params
 from seafmu.components.controller import ControllerBlock
 from seafmu.components.vessel_spec import load_vessel
 from seafmu.identification.trial import load_trial
-from seafmu.testplan import identified_table, identify_measurements, run_testplan
 from seafmu.testplan.cli import main
 from seafmu.testplan.design import plan, steady_speed
 from seafmu.testplan.measure import run_trial
+from seafmu.testplan.runner import identified_table, identify_measurements, run_testplan
 
 
 def test_axis_trial_frees_exactly_the_zero_gain_dof() -> None:

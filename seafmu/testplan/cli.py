@@ -6,8 +6,6 @@ import argparse
 import sys
 from pathlib import Path
 
-from seafmu.testplan import TestplanError, relative_error, run_testplan
-
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Register the ``testplan`` sub-command."""
@@ -34,10 +32,13 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
 
 def run(args: argparse.Namespace) -> int:
     """Run the plan; 0 when done, 2 on bad input or a failed run (one line)."""
+    # Imported here, not at the top: every `seafmu` command builds this parser, and the test plan's
+    # identification stack (SciPy statistics) would add about 0.6 s to each of them.
     from seafmu.components.vessel_spec import VesselFileError, bundled_vessels
     from seafmu.hardware.profile import load_profile
     from seafmu.master import SimulationError
     from seafmu.scenario import ScenarioError
+    from seafmu.testplan.runner import TestplanError, relative_error, run_testplan
 
     vessel = args.vessel
     if vessel not in bundled_vessels():
