@@ -4,6 +4,8 @@
 
 from __future__ import annotations
 
+import copy
+import hashlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -12,7 +14,7 @@ from seafmu.components.vessel_spec import NU_NAMES, VesselSpec
 from seafmu.identification import arrowlm, fitting
 from seafmu.identification.effects import CatalogueEffect
 from seafmu.identification.maneuver.preprocessing import _Prepared, noise_ratios
-from seafmu.identification.maneuver.simulation import _sim_residual, _SimSetup
+from seafmu.identification.maneuver.simulation import _sim_residual, _SimSetup, _Simulator
 from seafmu.identification.maneuver.statistics import _autocorr_inflation
 from seafmu.identification.maneuver.terms import (
     _Restoring,
@@ -196,10 +198,13 @@ def _output_error(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | None, 
     ``effect`` adds a diagnosis extension's parameters (``effect_names``), started at "absent";
     ``start`` (name -> value, e.g. a baseline fit's) replaces the LS start where it has a value.
     An effect that must first be located (``maneuver_variants``: which thruster is lost) is
-    screened over its variants (``_screen_variants``); the ``LOCATE_KEEP`` most promising are
-    fitted and the one with the lowest cost is kept (the variants have the same number of
-    parameters, so also the lowest AIC). ``info["variants"]`` lists every variant, best first:
-    its screening cost and, where fitted, its value, CI, cost and AIC.
+    screened over its variants: ranked by equation error (``_screen_equation_error``: one linear
+    least squares per variant), started from one output-error Gauss-Newton step
+    (``_screen_variants``); the best is fitted alone when its equation-error gain is
+    ``LOCATE_CLEAR`` times the runner-up's, else the ``LOCATE_KEEP`` best are, and the one with the
+    lowest cost is kept (the variants have the same number of parameters, so also the lowest AIC).
+    ``info["variants"]`` lists every variant, best first: its screening costs and, where fitted,
+    its value, CI, cost and AIC.
     """
     eff = maneuver_effect(effect) if effect is not None else None
     variants = getattr(eff, "maneuver_variants", None)
@@ -214,8 +219,15 @@ def _output_error(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | None, 
     cands = variants(prep.thrust.shape[1])
     screen = _screen_variants(vessel, prep, setup, ls, plant, base, start, cands)
     scores, starts = screen if screen is not None else ([np.inf] * len(cands), [{} for _ in cands])
-    order = sorted(range(len(cands)), key=lambda i: scores[i])
-    keep = LOCATE_KEEP if screen is not None else len(cands)
+    ee = _screen_equation_error(vessel, prep, setup, cands)
+    if ee is not None:  # the equation-error screen ranks; the output-error one gives the starts
+        order = sorted(range(len(cands)), key=lambda i: ee[i])
+        gains = ee[-1] - np.array([ee[i] for i in order[:2]])  # ee[-1]: no variant
+        clear = len(order) < 2 or gains[0] > LOCATE_CLEAR * max(gains[1], 0.0)
+        keep = 1 if clear else LOCATE_KEEP
+    else:
+        order = sorted(range(len(cands)), key=lambda i: scores[i])
+        keep = LOCATE_KEEP if screen is not None else len(cands)
     fits = []
     for i in order[:keep]:
         w: list[str] = []
@@ -230,11 +242,12 @@ def _output_error(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | None, 
         k = names[-1]  # the variant's own parameter comes last
         # AIC from the fitting cost (sum of squared normalised residuals) and the parameter count
         aic = n_res * float(np.log(max(2.0 * info["oe_cost"], 1e-300) / n_res)) + 2.0 * len(names)
-        rows.append({"param": k, "screen_cost": _finite(scores[i]), "value": float(p[-1]),
+        rows.append({"param": k, "screen_cost": _finite(scores[i]),
+                     "equation_error_cost": None if ee is None else _finite(ee[i]), "value": float(p[-1]),
                      "ci95": [float(ci[k][0]), float(ci[k][1])], "cost": info["oe_cost"], "aic": aic,
                      "delta_aic": aic - (rows[0]["aic"] if rows else aic)})
-    rows += [{"param": cands[i].maneuver_params(vessel.dof)[-1], "screen_cost": _finite(scores[i])}
-             for i in order[keep:]]
+    rows += [{"param": cands[i].maneuver_params(vessel.dof)[-1], "screen_cost": _finite(scores[i]),
+              "equation_error_cost": None if ee is None else _finite(ee[i])} for i in order[keep:]]
     best[9]["variants"] = rows
     floor = float(getattr(eff, "min_effect", 0.0))
     value = float(best[4][-1])
@@ -266,8 +279,66 @@ def _finite(x: float) -> float | None:
     return float(x) if np.isfinite(x) else None
 
 
-# How many of an effect's variants (e.g. which thruster is lost) are fitted after the screening.
+# How many of an effect's variants (e.g. which thruster is lost) are fitted after the screening;
+# only the best one when its equation-error gain is LOCATE_CLEAR times the runner-up's.
 LOCATE_KEEP = 3
+LOCATE_CLEAR = 3.0
+
+
+def _screen_equation_error(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup,
+                           cands: list[CatalogueEffect]) -> list[float] | None:
+    """Each variant's equation-error cost, and the cost without any (last): the force form
+    tau - g = M nu_dot + C_M(nu) nu + D_L nu + D_Q |nu| nu (symmetric M, diagonal damping) is
+    linear in the variant's parameter too (a thruster's gain scales its column of B times its
+    thrust), so every variant is one more column of the same least squares, solved on the fitted
+    part. None when the variants have no such column (``maneuver_terms`` without thrust_gain)."""
+    if prep.thrust is None:
+        return None
+    d = vessel.dof
+    n = prep.t.size
+    end = min(int(np.searchsorted(prep.t, setup.t[-1] if setup.t is not None else prep.t[-1])) + 1,
+              n - prep.edge)
+    rows = np.arange(prep.edge, end)
+    if rows.size < 10 * (d * d + 2 * d):
+        return None
+    g = _Restoring(vessel)(prep.eta[rows, 3], prep.eta[rows, 4]) if d == 6 else np.zeros((rows.size, d))
+    nu, nud, y = prep.nu[rows], prep.nu_dot[rows], prep.tau[rows] - g
+    m_idx = _names("M", d, "upper")
+    cols = []
+    for _, i, j in m_idx:
+        E = np.zeros((d, d))
+        E[i, j] = E[j, i] = 1.0
+        cols.append(nud @ E.T + coriolis_force(E, nu))
+    for src in (nu, np.abs(nu) * nu):
+        for i in range(d):
+            c = np.zeros_like(nu)
+            c[:, i] = src[:, i]
+            cols.append(c)
+    if "thrust_gain" not in cands[0].maneuver_terms(np.array([[1.0]])):
+        return None
+    Bm = setup.sim.B  # (d, m)
+    extra = []
+    for c in cands:
+        gain = c.maneuver_terms(np.array([[0.0]]))["thrust_gain"][0]  # 0 on the variant's thruster
+        k = int(np.argmin(gain))
+        extra.append(-prep.thrust[rows, k][:, None] * Bm[:, k][None, :])  # d tau / d (eta_k - 1), moved left
+    w = 1.0 / np.maximum(y.std(axis=0), 1e-12)  # each DOF row scaled to unit spread
+    X = np.stack(cols + extra, axis=-1) * w[None, :, None]  # (n, d, P + m)
+    yw = (y * w).reshape(-1)
+    Xf = X.reshape(-1, X.shape[-1])
+    G = Xf.T @ Xf
+    b = Xf.T @ yw
+    yy = float(yw @ yw)
+    P = len(cols)
+
+    def sse(idx: list[int]) -> float:
+        A, r = G[np.ix_(idx, idx)], b[idx]
+        cs = np.sqrt(np.maximum(np.diag(A), 1e-300))
+        th = np.linalg.lstsq(A / np.outer(cs, cs), r / cs, rcond=None)[0] / cs
+        return yy - float(r @ th)
+
+    base = list(range(P))
+    return [sse([*base, P + k]) for k in range(len(cands))] + [sse(base)]
 
 
 def _screen_variants(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup, ls: _LSResult,
@@ -348,6 +419,74 @@ def _screen_from(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup, plant: d
                        **{f"D_Q[{i},{i}]": float(max(DQ[j, i, i], 0.0)) for i in range(d)},
                        c.maneuver_params(d)[-1]: float(c.absent + st[j, -1])} if ok else {})
     return costs, starts
+
+
+# The output-error Jacobian is taken on a grid this many times coarser (at most JAC_MAX_H s): the
+# sensitivities are smooth in time, so interpolating them between coarse samples costs nothing in the
+# fit (the minimum is the fine grid's: the residuals are always simulated on it), and each Jacobian
+# costs a fraction of the fine simulations. The covariance uses the fine-grid Jacobian at the solution.
+JAC_COARSEN = (4, 2)
+JAC_MAX_H = 0.2
+
+
+def _coarse_sim(setup: _SimSetup) -> tuple[_Simulator, int] | None:
+    """The setup's simulator on every c-th sample (c from ``JAC_COARSEN``), same segments and
+    starts; RK4 midpoints at the fine samples halfway (c even). None when no c fits."""
+    sim = setup.sim
+    L = sim.length
+    c = next((c for c in JAC_COARSEN if L % c == 0 and L >= 4 * c and c * sim.h <= JAC_MAX_H + 1e-12), 0)
+    if not c:
+        return None
+    co = copy.copy(sim)
+    co.length, co.h = L // c, sim.h * c
+    co.tau, co.tau_mid = sim.tau[:, ::c], sim.tau[:, c // 2 :: c]
+    if sim.psi is not None:
+        co.psi, co.psi_mid = sim.psi[:, ::c], sim.psi[:, c // 2 :: c]
+    if sim.thrust is not None:
+        co.thrust, co.thrust_mid = sim.thrust[:, ::c], sim.thrust[:, c // 2 :: c]
+    return co, c
+
+
+def _interp_rows(Rc: np.ndarray, c: int) -> np.ndarray:
+    """(K, S, Lc+1, d) on the coarse grid -> (K, S, c Lc + 1, d), linear between coarse samples."""
+    Lc = Rc.shape[2] - 1
+    j = np.arange(c * Lc + 1)
+    i = np.minimum(j // c, Lc - 1)
+    w = ((j - c * i) / c)[None, None, :, None]
+    return (1.0 - w) * Rc[:, :, i] + w * Rc[:, :, i + 1]
+
+
+# The segments' fitted initial states of recent output-error fits, by log and model parameters: an
+# extension fit started from a baseline's parameters (the diagnosis) starts from its states too (the
+# measured ones would undo most of what the baseline's fit gained).
+_STATES: list[tuple[str, tuple[str, ...], np.ndarray, np.ndarray]] = []
+_STATES_MAX = 16
+
+
+def _log_key(setup: _SimSetup) -> str:
+    h = hashlib.blake2b(digest_size=16)
+    for a in (setup.meas, setup.sim.tau, setup.sim.x0):
+        h.update(np.ascontiguousarray(a).tobytes())
+    return h.hexdigest()
+
+
+def _remember_states(key: str, names: list[str], values: np.ndarray, x0: np.ndarray) -> None:
+    """Keep a fit's segment states (the oldest of ``_STATES_MAX`` dropped)."""
+    del _STATES[: max(0, len(_STATES) - _STATES_MAX + 1)]
+    _STATES.append((key, tuple(names), np.array(values, dtype=float), x0.copy()))
+
+
+def _recall_states(key: str, start: dict[str, float] | None) -> np.ndarray | None:
+    """The fitted segment states of an earlier fit of this log whose every parameter ``start``
+    gives at exactly its fitted value, else of the latest fit of this log (a start the caller
+    still compares with the measured states); None when there is no start or no such fit."""
+    if not start:
+        return None
+    mine = [(names, values, x0) for k, names, values, x0 in _STATES if k == key]
+    for names, values, x0 in reversed(mine):
+        if all(start.get(n) == v for n, v in zip(names, values.tolist(), strict=True)):
+            return x0
+    return mine[-1][2] if mine else None
 
 
 def _output_error_one(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | None, ls: _LSResult,
@@ -458,31 +597,39 @@ def _output_error_held(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | N
         """The effect's terms for the simulator (its object's ``maneuver_terms``: F0, vc)."""
         return eff.maneuver_terms(P[:, e0:]) if eff is not None else {}
 
-    def residuals(Z: np.ndarray) -> np.ndarray:
+    coarse = _coarse_sim(setup)
+
+    def residuals(Z: np.ndarray, on_coarse: bool = False) -> np.ndarray:
         """Residuals per segment (K, S, R) for several scaled parameter sets, R = (L + 1) d rows
-        per segment, zero where no sample is compared (the segment start, past the log's end)."""
+        per segment, zero where no sample is compared (the segment start, past the log's end).
+        ``on_coarse``: simulated on the coarse grid and interpolated to the fine one (Jacobian)."""
         P = Z[:, :npar] * scales
         X0 = Z[:, npar:].reshape(-1, S, nx) * x_scale
-        r = _sim_residual(setup, *mats(P), X0, **terms(P))
+        if on_coarse and coarse is not None:
+            co, c = coarse
+            x = co.run(*mats(P), X0, **terms(P))
+            r = _interp_rows((x[..., -d:] - setup.meas[None, :, ::c]) / setup.scale, c)
+        else:
+            r = _sim_residual(setup, *mats(P), X0, **terms(P))
         r = np.where(maskd, np.where(np.isfinite(r), r, 1e3), 0.0)
         return r.reshape(P.shape[0], S, -1)
 
     def fun(z: np.ndarray) -> np.ndarray:
         return residuals(z[None])[0]
 
-    def jac(z: np.ndarray) -> arrowlm.ArrowJacobian:
+    def jac(z: np.ndarray, fine: bool = False) -> arrowlm.ArrowJacobian:
         """Finite differences in one batched simulation: one run per model parameter, and one
         per state component (it perturbs that component in every segment at once; segments
         are independent, so segment s's rows give its own state's column). Kept by blocks
         (arrowlm): a dense matrix would have one column per segment and state, rows x columns
-        growing as the square of the log length."""
+        growing as the square of the log length. On the coarse grid unless ``fine``."""
         step = 1e-6 * np.maximum(1.0, np.abs(z))
         Z = np.repeat(z[None], 1 + npar + nx, axis=0)
         Z[1 + np.arange(npar), np.arange(npar)] += step[:npar]
         hx = 1e-6
         for j in range(nx):
             Z[1 + npar + j, npar + j :: nx] += hx
-        R = residuals(Z)
+        R = residuals(Z, on_coarse=not fine)
         Jp = ((R[1 : 1 + npar] - R[0]) / step[:npar, None, None]).transpose(1, 2, 0)
         Jx = ((R[1 + npar :] - R[0]) / hx).transpose(1, 2, 0)
         return arrowlm.ArrowJacobian(np.ascontiguousarray(Jp), np.ascontiguousarray(Jx))
@@ -493,10 +640,17 @@ def _output_error_held(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | N
                             + ([np.diag(plant["M"])] if added_mass else []) + [np.array(absent, dtype=float)])
     x0z = (x0_meas / x_scale).ravel()
     z_ls, z_file = np.concatenate([p0 / scales, x0z]), np.concatenate([p_file / scales, x0z])
-    costs = np.sum(residuals(np.vstack([z_ls, z_file])) ** 2, axis=(1, 2))
-    z0 = z_ls if costs[0] <= costs[1] else z_file
+    starts = [z_ls, z_file]
+    log_key = _log_key(setup)
+    fitted_x0 = _recall_states(log_key, start)
+    if fitted_x0 is not None:  # the given start with the states fitted with it (a warm start)
+        starts.append(np.concatenate([p0 / scales, (fitted_x0 / x_scale).ravel()]))
+    costs = np.sum(residuals(np.vstack(starts)) ** 2, axis=(1, 2))
+    best = int(np.argmin(costs))
+    z0 = starts[best]
     first = "given start" if start else "LS estimate"
-    start_from = first if costs[0] <= costs[1] else f"vessel file ({first} simulated worse)"
+    start_from = [first, f"vessel file ({first} simulated worse)",
+                  f"{first} with the segment states fitted with it"][best]
     p0 = z0[:npar] * scales
     # MINPACK's Levenberg-Marquardt (as least_squares(method="lm", x_scale=1.0)) on the block
     # structure: time and memory linear in the log length (arrowlm)
@@ -504,11 +658,14 @@ def _output_error_held(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | N
     p = sol.x[:npar] * scales
     if not sol.success:
         warnings.append(f"output-error optimiser stopped: {sol.message}")
+    _remember_states(log_key, names, p, sol.x[npar:].reshape(S, nx) * x_scale)
     r = sol.fun[maskd.reshape(S, -1)]  # the compared residuals, in time order
     infl = _autocorr_inflation(r.reshape(-1, d))
-    # s^2 (J^T J)^-1 over model and initial-state parameters (column-scaled pseudo-inverse), model block
+    # s^2 (J^T J)^-1 over model and initial-state parameters (column-scaled pseudo-inverse), model block,
+    # from the Jacobian on the fine grid
+    J = jac(sol.x, fine=True) if coarse is not None else sol.jac
     n_cols = npar + S * nx
-    cov = float(r @ r) / max(r.size - n_cols, 1) * sol.jac.scaled(scales).normal().inverse_pp() * infl
+    cov = float(r @ r) / max(r.size - n_cols, 1) * J.scaled(scales).normal().inverse_pp() * infl
     ci = fitting.confidence_intervals(names, p, cov, r.size)
     corr = fitting.correlation_matrix(cov)
     M, DL, DQ = (a[0] for a in mats(p[None]))
