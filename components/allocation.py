@@ -49,6 +49,7 @@ import numpy as np
 from . import registry
 from .block import Block, Interface, Signal
 from .kernels import alloc as alloc_kernel
+from .kernels import thrust_law
 from .thrusters import max_thrust, speed_to_thrust, thrust_to_speed, thruster_matrix
 from .vessel_spec import TAU_NAMES, VesselSpec
 
@@ -593,7 +594,7 @@ class AllocatorBlock(Block):
             self._o_pos = np.array([starts[0], starts[1], starts[2], self._o_err, starts[3], self._o_energy])
         th = vessel.thrusters
         self._th = np.ascontiguousarray(np.vstack([th.k_forward, th.k_reverse, 1.0 / th.time_constant]))
-        self._quadratic = int(th.law == "quadratic")
+        self._thrust_law = thrust_law.code(th.law)
         self._n_max = np.ascontiguousarray(th.n_max, dtype=float)
         self._B_c = np.ascontiguousarray(self.B)
         self._tau_idx = np.arange(len(self.inp), dtype=np.int64)[self._in_tau]
@@ -746,7 +747,7 @@ class AllocatorBlock(Block):
             Tc = np.empty(self._m)
             if alloc_kernel.pinv_step(np.ascontiguousarray(u), self._tau_idx, self._P, self._tau_fixed,
                                       self._T_fixed, self._any_off, self._lo_fixed, self._hi_fixed, self._B_c,
-                                      self._th, self._quadratic, self._n_max, self._off, self._camera_idx,
+                                      self._th, self._thrust_law, self._n_max, self._off, self._camera_idx,
                                       self._y, self._o_pos, self._o_front, self._o_iter, Tc):
                 self._T_prev = Tc
                 return self._y.copy()
@@ -760,7 +761,7 @@ class AllocatorBlock(Block):
         y = self._y
         if self._o_pos is not None:  # n, T, tau_alloc, alloc_error, sat, thrust_energy: one compiled call
             alloc_kernel.outputs(np.ascontiguousarray(T, dtype=float), np.ascontiguousarray(tau, dtype=float),
-                                 self._B_c, self._th, self._quadratic, self._n_max, self._off, self._any_off,
+                                 self._B_c, self._th, self._thrust_law, self._n_max, self._off, self._any_off,
                                  np.ascontiguousarray(sat), y, self._o_pos)
             y[self._o_front] = negative_front_thrust(T, self._camera) if self._camera else 0.0
             y[self._o_iter] = iterations

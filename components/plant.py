@@ -170,6 +170,7 @@ class PlantBlock(Block):
         self._n_out = len(o)
         self._o_x = o.at(states + [f"n_{i + 1}" for i in th])
         self._o_thrust = o.at([f"thrust_{i + 1}" for i in th])
+        self._thrust_buf = np.empty(vessel.thrusters.count)  # the thrust law's output, reused
         self._o_sensors = o.at(SensorSuite.output_names(vessel.sensors))
         self._o_course_sog = o.at(["course", "sog"])
         self._o_env = o.at(["wave_elevation", *(f"tau_wave_{t}" for t in vessel.tau_names), "current_north",
@@ -211,7 +212,8 @@ class PlantBlock(Block):
         else:  # the held samples are the last outputs' (most steps take no sample)
             y = self._y.copy()
         y[self._o_x] = x
-        y[self._o_thrust] = self._model.thrust_list(x[2 * self.vessel.dof :].tolist())
+        self._model.thrust_into(x[2 * self.vessel.dof :], self._thrust_buf)
+        y[self._o_thrust] = self._thrust_buf
         y[self._o_course_sog] = self._course_sog()
         y[self._o_env] = self._env_out()
         return y

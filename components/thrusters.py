@@ -7,8 +7,11 @@ thrust limits (``max_thrust``) so that both sides agree on one definition of the
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
+from .kernels import thrust_law
 from .vessel_spec import ThrusterSpec
 
 
@@ -32,23 +35,25 @@ def clip_speed(spec: ThrusterSpec, n_cmd: np.ndarray) -> np.ndarray:
     return np.clip(np.asarray(n_cmd, dtype=float), -spec.n_max, spec.n_max)
 
 
+def _by_element(f: Any, spec: ThrusterSpec, x: np.ndarray) -> np.ndarray:
+    """A ``thrust_law`` loop over x of shape (..., m), the coefficients broadcast per thruster."""
+    x = np.asarray(x, dtype=float)
+    shape = x.shape
+    kf = np.ascontiguousarray(np.broadcast_to(np.asarray(spec.k_forward, float), shape)).ravel()
+    kr = np.ascontiguousarray(np.broadcast_to(np.asarray(spec.k_reverse, float), shape)).ravel()
+    out = np.empty(kf.shape[0])
+    f(np.ascontiguousarray(x).ravel(), kf, kr, thrust_law.code(spec.law), out)
+    return out.reshape(shape)
+
+
 def speed_to_thrust(spec: ThrusterSpec, n: np.ndarray) -> np.ndarray:
-    """T = k n (linear) or k n|n| (quadratic), k = k_forward for n >= 0, k_reverse otherwise."""
-    n = np.asarray(n, dtype=float)
-    k = np.where(n >= 0.0, spec.k_forward, spec.k_reverse)
-    if spec.law == "linear":
-        return k * n
-    return k * n * np.abs(n)
+    """The vessel's thrust law at shaft speeds n (``kernels/thrust_law.py``: the one definition)."""
+    return _by_element(thrust_law.thrusts, spec, n)
 
 
 def thrust_to_speed(spec: ThrusterSpec, T: np.ndarray, clip: bool = True) -> np.ndarray:
     """Inverse law: the shaft speed that gives thrust T (clipped to +-n_max unless ``clip=False``)."""
-    T = np.asarray(T, dtype=float)
-    k = np.where(T >= 0.0, spec.k_forward, spec.k_reverse)
-    if spec.law == "linear":
-        n = T / k
-    else:
-        n = np.sign(T) * np.sqrt(np.abs(T) / k)
+    n = _by_element(thrust_law.speeds, spec, T)
     return np.clip(n, -spec.n_max, spec.n_max) if clip else n
 
 

@@ -35,7 +35,7 @@ import numpy as np
 
 from .dynamics import J, gvect, m2c, restoring_coefficients, rzyx
 from .environment import current_body
-from .kernels import rigid_body
+from .kernels import rigid_body, thrust_law
 from .thrusters import speed_to_thrust, thruster_matrix
 from .vessel_spec import ANGLE_NAMES, VesselSpec
 
@@ -69,10 +69,8 @@ class VesselModel:
         # nu_dot = K @ [T, C+g, nu_r, |nu_r| nu_r]
         self._K = self._k_matrix(self.B)
         th = spec.thrusters
-        self._kf = th.k_forward.tolist()
-        self._kr = th.k_reverse.tolist()
         self._n_max = th.n_max.tolist()
-        self._quadratic = th.law == "quadratic"
+        self._law = thrust_law.code(th.law)
         if dof == 6:
             rs = spec.restoring
             if rs is None:
@@ -83,7 +81,7 @@ class VesselModel:
         # the compiled kernels' packed parameters (contiguous float64), K the nominal one
         self.kernel_params = rigid_body.rigid_body_params(
             self.M_RB, self.M_A, self.D_L, self.D_Q, self.B, self._g6 if dof == 6 else None, th.k_forward,
-            th.k_reverse, th.time_constant, self._quadratic, self.coriolis, self.relative_inertia,
+            th.k_reverse, th.time_constant, self._law, self.coriolis, self.relative_inertia,
             self.angle_index)._replace(K=np.ascontiguousarray(self._K))
         self._no_ext = np.zeros(dof)
 
@@ -118,12 +116,9 @@ class VesselModel:
                        p.g6, p.th, p.flags, np.zeros(self.m + 3 * self.dof), out)
         return out
 
-    def thrust_list(self, n: list[float]) -> list[float]:
-        """Thrust law on a list of shaft speeds (same law as ``thrusters.speed_to_thrust``, faster)."""
-        kk = zip(n, self._kf, self._kr, strict=True)
-        if self._quadratic:
-            return [(a if ni >= 0.0 else b) * ni * abs(ni) for ni, a, b in kk]
-        return [(a if ni >= 0.0 else b) * ni for ni, a, b in kk]
+    def thrust_into(self, n: np.ndarray, out: np.ndarray) -> None:
+        """The thrust law at shaft speeds n (contiguous float64) into ``out``: one compiled call."""
+        rigid_body.thrust(n, self.kernel_params.th, self._law, out)
 
     def clip(self, n_cmd: list[float] | np.ndarray) -> list[float]:
         """Speed commands limited to +-n_max, as the list ``rhs``/``rk4`` take."""

@@ -945,3 +945,24 @@ def test_a_kernel_compiled_by_an_fmus_copy_loads_from_the_cache_here(tmp_path) -
     values, hits, misses = second.stdout.split("]")[0] + "]", *second.stdout.split("]")[1].split()
     assert values == first.stdout.strip()
     assert (int(hits), int(misses)) == (1, 0)  # loaded, not compiled again
+
+
+def test_one_thrust_law_definition_for_every_caller() -> None:
+    """The laws a vessel file may name are the compiled ones, and the NumPy helpers, the plant's
+    kernel and the allocator's inverse all give the textbook law (T = k n or k n|n|)."""
+    from seafmu.components.kernels import thrust_law
+    from seafmu.components.vessel_spec import K_UNITS, load_vessel
+
+    assert tuple(K_UNITS) == thrust_law.LAWS
+    rng = np.random.default_rng(5)
+    for name in ("minerva2", "amv_osf", "supply"):
+        th = load_vessel(name).thrusters
+        n = rng.uniform(-1.0, 1.0, (50, th.count)) * th.n_max
+        k = np.where(n >= 0, th.k_forward, th.k_reverse)
+        ref = k * n * np.abs(n) if th.law == "quadratic" else k * n
+        np.testing.assert_array_equal(speed_to_thrust(th, n), ref)
+        np.testing.assert_allclose(thrust_to_speed(th, ref, clip=False), n, rtol=1e-12, atol=1e-12)
+        out = np.empty(th.count)
+        p = np.ascontiguousarray(np.vstack([th.k_forward, th.k_reverse, 1.0 / th.time_constant]))
+        rigid_body.thrust(np.ascontiguousarray(n[0]), p, thrust_law.code(th.law), out)
+        np.testing.assert_array_equal(out, ref[0])

@@ -15,6 +15,7 @@ import math
 import numpy as np
 
 from ._jit import kernel
+from .thrust_law import speed_of
 
 
 @kernel
@@ -49,17 +50,12 @@ def pinv_clip(
 
 @kernel
 def speed_from_thrust(
-    T: np.ndarray, th: np.ndarray, quadratic: int, n_max: np.ndarray, out: np.ndarray
+    T: np.ndarray, th: np.ndarray, law: int, n_max: np.ndarray, out: np.ndarray
 ) -> None:
-    """n with k n|n| = T (quadratic) or k n = T, k by the sign of T, clipped to +-n_max."""
+    """The inverse thrust law (``thrust_law.speed_of``), k by the sign of T, clipped to +-n_max."""
     for i in range(T.shape[0]):
         t = T[i]
-        k = th[0, i] if t >= 0.0 else th[1, i]
-        if quadratic:
-            sg = 1.0 if t > 0.0 else (-1.0 if t < 0.0 else 0.0)
-            n = sg * math.sqrt(abs(t) / k)
-        else:
-            n = t / k
+        n = speed_of(th[0, i] if t >= 0.0 else th[1, i], t, law)
         out[i] = min(max(n, -n_max[i]), n_max[i])
 
 
@@ -69,7 +65,7 @@ def outputs(
     tau: np.ndarray,
     B: np.ndarray,
     th: np.ndarray,
-    quadratic: int,
+    law: int,
     n_max: np.ndarray,
     off: np.ndarray,
     any_off: bool,
@@ -82,7 +78,7 @@ def outputs(
     tau_alloc = B T, ||tau_alloc - tau||, sat, T^T T (``AllocatorBlock.step``)."""
     d, m = B.shape
     n = np.empty(m)
-    speed_from_thrust(T, th, quadratic, n_max, n)
+    speed_from_thrust(T, th, law, n_max, n)
     n0, t0, a0, e0, s0, w0 = pos[0], pos[1], pos[2], pos[3], pos[4], pos[5]
     for i in range(m):
         y[n0 + i] = 0.0 if (any_off and off[i]) else n[i]
@@ -141,7 +137,7 @@ def pinv_step(
     hi: np.ndarray,
     B: np.ndarray,
     th: np.ndarray,
-    quadratic: int,
+    law: int,
     n_max: np.ndarray,
     off: np.ndarray,
     camera: np.ndarray,
@@ -164,7 +160,7 @@ def pinv_step(
     T = np.empty(m)
     sat = np.empty(m, dtype=np.bool_)
     pinv_clip(P, tau, tau_fixed, T_fixed, any_off, lo, hi, T, Tc, sat)
-    outputs(Tc, tau, B, th, quadratic, n_max, off, any_off, sat, y, pos)
+    outputs(Tc, tau, B, th, law, n_max, off, any_off, sat, y, pos)
     neg = 0.0
     for k in range(camera.shape[0]):
         t = Tc[camera[k]]

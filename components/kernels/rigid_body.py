@@ -13,7 +13,7 @@ Parameters come packed by ``rigid_body_params`` (NumPy, once per vessel):
   ``current_inertia: relative``;
 - ``g6``: (W - B, g_x, g_y, g_z) restoring coefficients (zeros for 3 DOF);
 - ``th`` (3, m): rows k_forward, k_reverse, 1 / time constant;
-- ``flags``: (dof, quadratic thrust law, Coriolis on, relative inertia).
+- ``flags``: (dof, thrust law code (``thrust_law.LAWS``), Coriolis on, relative inertia).
 """
 
 from __future__ import annotations
@@ -24,6 +24,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ._jit import kernel
+from .thrust_law import thrust_of
 
 _PI = math.pi
 _TWO_PI = 2.0 * math.pi
@@ -54,7 +55,7 @@ def rigid_body_params(
     k_forward: np.ndarray,
     k_reverse: np.ndarray,
     time_constant: np.ndarray,
-    quadratic: bool,
+    law: int,
     coriolis: bool,
     relative: bool,
     angle_index: list[int],
@@ -78,7 +79,7 @@ def rigid_body_params(
     th = np.vstack(
         [np.asarray(k_forward, float), np.asarray(k_reverse, float), 1.0 / np.asarray(time_constant, float)]
     )
-    flags = np.array([dof, int(quadratic), int(coriolis), int(relative)], dtype=np.int64)
+    flags = np.array([dof, int(law), int(coriolis), int(relative)], dtype=np.int64)
     g = np.zeros(4) if g6 is None else np.asarray(g6, float)
     return RigidBodyParams(
         _c(K), _c(MS), _c(MAL), _c(ML), _c(g), _c(th), flags, np.asarray(angle_index, dtype=np.int64)
@@ -86,12 +87,11 @@ def rigid_body_params(
 
 
 @kernel
-def thrust(n: np.ndarray, th: np.ndarray, quadratic: int, out: np.ndarray) -> None:
-    """T = k n|n| (quadratic) or k n, k = k_forward for n >= 0 else k_reverse (``thrust_list``)."""
+def thrust(n: np.ndarray, th: np.ndarray, law: int, out: np.ndarray) -> None:
+    """The thrust law (``thrust_law``), k = k_forward for n >= 0 else k_reverse (``thrust_into``)."""
     for i in range(n.shape[0]):
         ni = n[i]
-        k = th[0, i] if ni >= 0.0 else th[1, i]
-        out[i] = k * ni * abs(ni) if quadratic else k * ni
+        out[i] = thrust_of(th[0, i] if ni >= 0.0 else th[1, i], ni, law)
 
 
 @kernel
@@ -112,7 +112,7 @@ def _tail(
     z: np.ndarray,
     K: np.ndarray,
     th: np.ndarray,
-    quadratic: int,
+    law: int,
     dof: int,
     out: np.ndarray,
 ) -> None:
@@ -120,8 +120,7 @@ def _tail(
     m = th.shape[1]
     for i in range(m):
         ni = x[2 * dof + i]
-        k = th[0, i] if ni >= 0.0 else th[1, i]
-        z[i] = k * ni * abs(ni) if quadratic else k * ni
+        z[i] = thrust_of(th[0, i] if ni >= 0.0 else th[1, i], ni, law)
     # Each row summed left to right as before; the rows' chains interleaved (one pass over z), so
     # the additions of different rows overlap instead of waiting for each other.
     nz = z.shape[0]
