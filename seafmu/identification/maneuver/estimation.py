@@ -217,23 +217,39 @@ def _output_error(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | None, 
     if setup is None:
         raise TrialError("too few samples for an output-error fit")
     cands = variants(prep.thrust.shape[1])
-    screen = _screen_variants(vessel, prep, setup, ls, plant, base, start, cands)
-    scores, starts = screen if screen is not None else ([np.inf] * len(cands), [{} for _ in cands])
-    ee = _screen_equation_error(vessel, prep, setup, cands)
-    if ee is not None:  # the equation-error screen ranks; the output-error one gives the starts
+    d = vessel.dof
+    got = _screen_equation_error(vessel, prep, setup, cands)
+    if got is not None:  # ranked by equation error, started from the baseline and its estimate
+        ee, steps = got
+        scores = [np.nan] * len(cands)
+        starts = [{c.maneuver_params(d)[-1]: c.absent + float(np.clip(st, -0.95, 1.0))}
+                  for c, st in zip(cands, steps, strict=True)]
         order = sorted(range(len(cands)), key=lambda i: ee[i])
         gains = ee[-1] - np.array([ee[i] for i in order[:2]])  # ee[-1]: no variant
         clear = len(order) < 2 or gains[0] > LOCATE_CLEAR * max(gains[1], 0.0)
         keep = 1 if clear else LOCATE_KEEP
     else:
+        ee = None
+        screen = _screen_variants(vessel, prep, setup, ls, plant, base, start, cands)
+        scores, starts = screen if screen is not None else ([np.inf] * len(cands), [{} for _ in cands])
         order = sorted(range(len(cands)), key=lambda i: scores[i])
         keep = LOCATE_KEEP if screen is not None else len(cands)
     fits = []
+    # several candidates: each fitted briefly (warm started, LOCATE_NFEV evaluations), the best
+    # then to convergence from where it stopped
+    nfev = max_nfev if keep == 1 else min(max_nfev, LOCATE_NFEV)
     for i in order[:keep]:
         w: list[str] = []
-        one = _output_error_one(vessel, prep, setup, ls, plant, added_mass, base, max_nfev, w, cands[i],
+        one = _output_error_one(vessel, prep, setup, ls, plant, added_mass, base, nfev, w, cands[i],
                                 {**(start or {}), **starts[i]})
         fits.append((one, w, i))
+    if keep > 1 and nfev < max_nfev:
+        fits.sort(key=lambda f: f[0][9]["oe_cost"])
+        (_, _, _, fnames, fp, *_), _, i = fits[0]
+        w = []
+        one = _output_error_one(vessel, prep, setup, ls, plant, added_mass, base, max_nfev, w, cands[i],
+                                {**(start or {}), **dict(zip(fnames, fp.tolist(), strict=True))})
+        fits[0] = (one, w, i)
     fits.sort(key=lambda f: f[0][9]["oe_cost"])
     best, w_best, _ = fits[0]
     warnings += w_best
@@ -283,11 +299,13 @@ def _finite(x: float) -> float | None:
 # only the best one when its equation-error gain is LOCATE_CLEAR times the runner-up's.
 LOCATE_KEEP = 3
 LOCATE_CLEAR = 3.0
+LOCATE_NFEV = 10  # function evaluations of each candidate's brief fit when several are fitted
 
 
 def _screen_equation_error(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup,
-                           cands: list[CatalogueEffect]) -> list[float] | None:
-    """Each variant's equation-error cost, and the cost without any (last): the force form
+                           cands: list[CatalogueEffect]) -> tuple[list[float], list[float]] | None:
+    """Each variant's equation-error cost, and the cost without any (last), and each variant's
+    estimated parameter change from "absent": the force form
     tau - g = M nu_dot + C_M(nu) nu + D_L nu + D_Q |nu| nu (symmetric M, diagonal damping) is
     linear in the variant's parameter too (a thruster's gain scales its column of B times its
     thrust), so every variant is one more column of the same least squares, solved on the fitted
@@ -331,14 +349,15 @@ def _screen_equation_error(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup
     yy = float(yw @ yw)
     P = len(cols)
 
-    def sse(idx: list[int]) -> float:
+    def sse(idx: list[int]) -> tuple[float, float]:
         A, r = G[np.ix_(idx, idx)], b[idx]
         cs = np.sqrt(np.maximum(np.diag(A), 1e-300))
         th = np.linalg.lstsq(A / np.outer(cs, cs), r / cs, rcond=None)[0] / cs
-        return yy - float(r @ th)
+        return yy - float(r @ th), float(th[-1])
 
     base = list(range(P))
-    return [sse([*base, P + k]) for k in range(len(cands))] + [sse(base)]
+    fits = [sse([*base, P + k]) for k in range(len(cands))]
+    return [c for c, _ in fits] + [sse(base)[0]], [st for _, st in fits]
 
 
 def _screen_variants(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup, ls: _LSResult,
