@@ -468,11 +468,12 @@ def _coarse_sim(setup: _SimSetup) -> tuple[_Simulator, int] | None:
 
 def _interp_rows(Rc: np.ndarray, c: int) -> np.ndarray:
     """(K, S, Lc+1, d) on the coarse grid -> (K, S, c Lc + 1, d), linear between coarse samples."""
-    Lc = Rc.shape[2] - 1
-    j = np.arange(c * Lc + 1)
-    i = np.minimum(j // c, Lc - 1)
-    w = ((j - c * i) / c)[None, None, :, None]
-    return (1.0 - w) * Rc[:, :, i] + w * Rc[:, :, i + 1]
+    K, S, n, d = Rc.shape
+    a, b = Rc[:, :, :-1], Rc[:, :, 1:]
+    out = np.empty((K, S, n - 1, c, d))
+    for r in range(c):  # the r-th fine sample after each coarse one
+        np.add(a * (1.0 - r / c), b * (r / c), out=out[:, :, :, r])
+    return np.concatenate([out.reshape(K, S, (n - 1) * c, d), Rc[:, :, -1:]], axis=2)
 
 
 # The segments' fitted initial states of recent output-error fits, by log and model parameters: an
