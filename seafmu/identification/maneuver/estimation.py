@@ -189,34 +189,12 @@ def _run_ls(prep: _Prepared, rows: np.ndarray, vessel: VesselSpec, plant: dict[s
 
 
 
-def _output_error(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | None, ls: _LSResult,
-                  plant: dict[str, np.ndarray], added_mass: bool, base: str, max_nfev: int,
-                  warnings: list[str], effect: str | None = None,
-                  start: dict[str, float] | None = None) -> tuple:
-    """Diagonal D_L, D_Q (and added mass) by simulation error, started from the LS estimate.
-
-    ``effect`` adds a diagnosis extension's parameters (``effect_names``), started at "absent";
-    ``start`` (name -> value, e.g. a baseline fit's) replaces the LS start where it has a value.
-    An effect that must first be located (``maneuver_variants``: which thruster is lost) is
-    screened over its variants: ranked by equation error (``_screen_equation_error``: one linear
-    least squares per variant), started from one output-error Gauss-Newton step
-    (``_screen_variants``); the best is fitted alone when its equation-error gain is
-    ``LOCATE_CLEAR`` times the runner-up's, else the ``LOCATE_KEEP`` best are, and the one with the
-    lowest cost is kept (the variants have the same number of parameters, so also the lowest AIC).
-    ``info["variants"]`` lists every variant, best first: its screening costs and, where fitted,
-    its value, CI, cost and AIC.
-    """
-    eff = maneuver_effect(effect) if effect is not None else None
-    variants = getattr(eff, "maneuver_variants", None)
-    if eff is None or variants is None:
-        return _output_error_one(vessel, prep, setup, ls, plant, added_mass, base, max_nfev, warnings, eff,
-                                 start)
-    if prep.thrust is None:
-        raise TrialError(f"effect '{effect}' needs one thrust column per thruster (thrust_1 ... or "
-                         "plant.thrust_i); this log gives the generalised force only")
-    if setup is None:
-        raise TrialError("too few samples for an output-error fit")
-    cands = variants(prep.thrust.shape[1])
+def _rank_variants(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup, ls: _LSResult,
+                   plant: dict[str, np.ndarray], base: str, start: dict[str, float] | None,
+                   cands: list[CatalogueEffect]) -> tuple:
+    """(variant indices best first, how many to fit, output-error screening costs, each variant's
+    start, equation-error costs or None): ranked by equation error and started from its estimate
+    where the log allows (``_screen_equation_error``), else by the output-error screen."""
     d = vessel.dof
     got = _screen_equation_error(vessel, prep, setup, cands)
     if got is not None:  # ranked by equation error, started from the baseline and its estimate
@@ -234,6 +212,39 @@ def _output_error(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | None, 
         scores, starts = screen if screen is not None else ([np.inf] * len(cands), [{} for _ in cands])
         order = sorted(range(len(cands)), key=lambda i: scores[i])
         keep = LOCATE_KEEP if screen is not None else len(cands)
+    return order, keep, scores, starts, ee
+
+
+def _output_error(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | None, ls: _LSResult,
+                  plant: dict[str, np.ndarray], added_mass: bool, base: str, max_nfev: int,
+                  warnings: list[str], effect: str | None = None,
+                  start: dict[str, float] | None = None) -> tuple:
+    """Diagonal D_L, D_Q (and added mass) by simulation error, started from the LS estimate.
+
+    ``effect`` adds a diagnosis extension's parameters (``effect_names``), started at "absent";
+    ``start`` (name -> value, e.g. a baseline fit's) replaces the LS start where it has a value.
+    An effect that must first be located (``maneuver_variants``: which thruster is lost) is
+    screened over its variants (``_rank_variants``): ranked by equation error (one linear least
+    squares per variant) and started from its estimate there and the baseline's fit (where equation
+    error cannot rank, by one output-error Gauss-Newton step, ``_screen_variants``); the best is
+    fitted alone when its equation-error gain is ``LOCATE_CLEAR`` times the runner-up's, else the
+    ``LOCATE_KEEP`` best are, briefly (``LOCATE_NFEV``), and the one with the lowest cost is kept,
+    fitted to convergence (the variants have the same number of parameters, so also the lowest AIC).
+    ``info["variants"]`` lists every variant, best first: its screening costs and, where fitted,
+    its value, CI, cost and AIC.
+    """
+    eff = maneuver_effect(effect) if effect is not None else None
+    variants = getattr(eff, "maneuver_variants", None)
+    if eff is None or variants is None:
+        return _output_error_one(vessel, prep, setup, ls, plant, added_mass, base, max_nfev, warnings, eff,
+                                 start)
+    if prep.thrust is None:
+        raise TrialError(f"effect '{effect}' needs one thrust column per thruster (thrust_1 ... or "
+                         "plant.thrust_i); this log gives the generalised force only")
+    if setup is None:
+        raise TrialError("too few samples for an output-error fit")
+    cands = variants(prep.thrust.shape[1])
+    order, keep, scores, starts, ee = _rank_variants(vessel, prep, setup, ls, plant, base, start, cands)
     fits = []
     # several candidates: each fitted briefly (warm started, LOCATE_NFEV evaluations), the best
     # then to convergence from where it stopped
