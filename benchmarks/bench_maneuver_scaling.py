@@ -33,7 +33,6 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import Any
 
 
 def _rss_mb() -> float:
@@ -51,65 +50,6 @@ def _rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # Linux: KiB
 
 
-def numpy_simulate(x0: Any, tau: Any, tau_mid: Any, W: Any, h: float, d: int, g4: Any, cur: bool, vc: Any,
-                   psi: Any, psi_mid: Any, out: Any) -> None:
-    """The simulator's RK4 as it was before issue 13 (NumPy on (K, S, ...) arrays, one step at a
-    time), with the compiled kernel's signature (``components/kernels/maneuver.simulate``)."""
-    import numpy as np
-
-    K = x0.shape[0]
-    L = out.shape[2] - 1
-    wb, gx, gy, gz = g4.tolist()
-
-    def f(x: Any, tau_k: Any, p: Any) -> Any:
-        o = 2 if d == 6 else 0
-        nu = x[..., o:]
-        if d == 6:
-            phi, th = x[..., 0], x[..., 1]
-            sp, cp, st, ct = np.sin(phi), np.cos(phi), np.sin(th), np.cos(th)
-            g = np.stack([wb * st, -wb * ct * sp, -wb * ct * cp, -gy * ct * cp + gz * ct * sp,
-                          gz * st + gx * ct * cp, -gx * ct * sp - gy * st], axis=-1)
-            force = tau_k - g
-        else:
-            force = np.broadcast_to(tau_k, nu.shape)
-        nn = (nu[..., :, None] * nu[..., None, :]).reshape(*nu.shape[:-1], -1)
-        if cur:
-            cs, sn = np.cos(p), np.sin(p)
-            vn, ve = vc[:, 0, None], vc[:, 1, None]
-            nuc = np.zeros_like(nu)
-            if d == 3:
-                nuc[..., 0], nuc[..., 1] = cs * vn + sn * ve, -sn * vn + cs * ve
-            else:
-                nuc[..., 0] = cs * ct * vn + sn * ct * ve
-                nuc[..., 1] = (-sn * cp + cs * st * sp) * vn + (cs * cp + sp * st * sn) * ve
-                nuc[..., 2] = (sn * sp + cs * cp * st) * vn + (-cs * sp + st * sn * cp) * ve
-            nur = nu - nuc
-            nnr = (nur[..., :, None] * nur[..., None, :]).reshape(*nur.shape[:-1], -1)
-            z = np.concatenate([np.broadcast_to(force, nu.shape), nn, nnr, nur, np.abs(nur) * nur], axis=-1)
-        else:
-            z = np.concatenate([force, nn, nu, np.abs(nu) * nu], axis=-1)
-        nu_dot = np.matmul(z, W)
-        if d == 3:
-            return nu_dot
-        p_, q_, r_ = nu[..., 3], nu[..., 4], nu[..., 5]
-        return np.concatenate([(p_ + (sp * q_ + cp * r_) * np.tan(th))[..., None],
-                               (cp * q_ - sp * r_)[..., None], nu_dot], axis=-1)
-
-    x = x0.copy()
-    out[:, :, 0] = x
-    with np.errstate(all="ignore"):
-        for k in range(L):
-            p0, pm, p1 = (psi[None, :, k], psi_mid[None, :, k], psi[None, :, k + 1]) if cur else (None,) * 3
-            k1 = f(x, tau[:, :, k], p0)
-            k2 = f(x + 0.5 * h * k1, tau_mid[:, :, k], pm)
-            k3 = f(x + 0.5 * h * k2, tau_mid[:, :, k], pm)
-            k4 = f(x + h * k3, tau[:, :, k + 1], p1)
-            x = x + (h / 6.0) * (k1 + 2.0 * (k2 + k3) + k4)
-            x = np.where(np.abs(x) < 1e6, x, np.nan)
-            out[:, :, k + 1] = x
-    assert K == out.shape[0]
-
-
 def child(path: str, vessel_name: str, method: str, repeat: int = 1, numpy_sim: bool = False) -> None:
     """Identify one log in this (fresh) process; print one JSON line with the figures."""
     from seafmu.components.vessel_spec import load_vessel
@@ -118,7 +58,7 @@ def child(path: str, vessel_name: str, method: str, repeat: int = 1, numpy_sim: 
     if numpy_sim:
         from seafmu.components.kernels import maneuver as kernel
 
-        kernel.simulate = numpy_simulate
+        kernel.simulate = kernel.simulate_numpy
     vessel = load_vessel(vessel_name)
     base_mb = _rss_mb()  # interpreter, numpy, scipy, the vessel: not the log's
     t0 = time.perf_counter()

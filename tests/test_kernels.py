@@ -645,73 +645,6 @@ def test_wave_force_and_elevation(vessel) -> None:
 # -- identification simulator ------------------------------------------------------------------
 
 
-def _maneuver_ref(x0, tau, tau_mid, W, h, d, g4, vc, psi, psi_mid):
-    """The batched NumPy RK4 of ``maneuver.simulation._Simulator`` (restoring, optional current)."""
-    K, S, nx = x0.shape
-    L = tau.shape[2] - 1
-    cur = vc is not None
-
-    def f(x, tau_k, p):
-        o = 2 if d == 6 else 0
-        nu = x[..., o:]
-        if d == 6:
-            phi, th = x[..., 0], x[..., 1]
-            sp, cp, st, ct = np.sin(phi), np.cos(phi), np.sin(th), np.cos(th)
-            wb, gx, gy, gz = g4
-            g = np.stack(
-                [
-                    wb * st,
-                    -wb * ct * sp,
-                    -wb * ct * cp,
-                    -gy * ct * cp + gz * ct * sp,
-                    gz * st + gx * ct * cp,
-                    -gx * ct * sp - gy * st,
-                ],
-                axis=-1,
-            )
-            force = tau_k - g
-        else:
-            force = np.broadcast_to(tau_k, nu.shape)
-        nn = (nu[..., :, None] * nu[..., None, :]).reshape(*nu.shape[:-1], -1)
-        if cur:
-            cs, sn = np.cos(p), np.sin(p)
-            vn, ve = vc[:, 0, None], vc[:, 1, None]
-            nuc = np.zeros_like(nu)
-            if d == 3:
-                nuc[..., 0], nuc[..., 1] = cs * vn + sn * ve, -sn * vn + cs * ve
-            else:
-                nuc[..., 0] = cs * ct * vn + sn * ct * ve
-                nuc[..., 1] = (-sn * cp + cs * st * sp) * vn + (cs * cp + sp * st * sn) * ve
-                nuc[..., 2] = (sn * sp + cs * cp * st) * vn + (-cs * sp + st * sn * cp) * ve
-            nur = nu - nuc
-            nnr = (nur[..., :, None] * nur[..., None, :]).reshape(*nur.shape[:-1], -1)
-            z = np.concatenate([np.broadcast_to(force, nu.shape), nn, nnr, nur, np.abs(nur) * nur], axis=-1)
-        else:
-            z = np.concatenate([force, nn, nu, np.abs(nu) * nu], axis=-1)
-        nu_dot = np.matmul(z, W)
-        if d == 3:
-            return nu_dot
-        p_, q_, r_ = nu[..., 3], nu[..., 4], nu[..., 5]
-        return np.concatenate(
-            [(p_ + (sp * q_ + cp * r_) * np.tan(th))[..., None], (cp * q_ - sp * r_)[..., None], nu_dot],
-            axis=-1,
-        )
-
-    x = x0.copy()
-    out = np.empty((K, S, L + 1, nx))
-    out[:, :, 0] = x
-    for k in range(L):
-        p0, pm, p1 = (psi[None, :, k], psi_mid[None, :, k], psi[None, :, k + 1]) if cur else (None,) * 3
-        k1 = f(x, tau[:, :, k], p0)
-        k2 = f(x + 0.5 * h * k1, tau_mid[:, :, k], pm)
-        k3 = f(x + 0.5 * h * k2, tau_mid[:, :, k], pm)
-        k4 = f(x + h * k3, tau[:, :, k + 1], p1)
-        x = x + (h / 6.0) * (k1 + 2.0 * (k2 + k3) + k4)
-        x = np.where(np.abs(x) < 1e6, x, np.nan)
-        out[:, :, k + 1] = x
-    return out
-
-
 @pytest.mark.parametrize("current", [False, True])
 def test_maneuver_simulate(vessel, current: bool) -> None:
     rng = np.random.default_rng(14)
@@ -738,7 +671,8 @@ def test_maneuver_simulate(vessel, current: bool) -> None:
     maneuver.simulate(
         x0, tau, tau_mid, W, 0.1, d, g4, current, np.zeros((K, 2)) if vc is None else vc, psi, psi_mid, out
     )
-    ref = _maneuver_ref(
+    ref = np.empty_like(out)
+    maneuver.simulate_numpy(
         x0,
         np.broadcast_to(tau, (K, *tau.shape[1:])),
         np.broadcast_to(tau_mid, (K, *tau_mid.shape[1:])),
@@ -746,9 +680,11 @@ def test_maneuver_simulate(vessel, current: bool) -> None:
         0.1,
         d,
         g4,
-        vc,
+        current,
+        np.zeros((K, 2)) if vc is None else vc,
         psi,
         psi_mid,
+        ref,
     )
     np.testing.assert_array_equal(np.isnan(out), np.isnan(ref))
     assert np.isnan(out[2, :, -1]).all()

@@ -15,6 +15,7 @@ work arrays with fixed sizes. The sums z W run in the order of z, as NumPy's mat
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -293,3 +294,61 @@ def simulate(
         _run3(x0, tau, tau_mid, W, h, cur, vc, psi, psi_mid, out)
     else:
         _run6(x0, tau, tau_mid, W, h, g4, cur, vc, psi, psi_mid, out)
+
+
+def simulate_numpy(x0: np.ndarray, tau: Any, tau_mid: Any, W: Any, h: float, d: int, g4: Any, cur: bool,
+                   vc: Any, psi: Any, psi_mid: Any, out: Any) -> None:
+    """The NumPy form ``simulate`` is held equal to (``tests/test_kernels.py``) and compared with
+    (``benchmarks/bench_maneuver_scaling.py``): the simulator's batched RK4 on (K, S, ...) arrays,
+    one step at a time, as it ran before it was compiled; same signature as ``simulate``."""
+    K = x0.shape[0]
+    L = out.shape[2] - 1
+    wb, gx, gy, gz = g4.tolist()
+
+    def f(x: Any, tau_k: Any, p: Any) -> Any:
+        o = 2 if d == 6 else 0
+        nu = x[..., o:]
+        if d == 6:
+            phi, th = x[..., 0], x[..., 1]
+            sp, cp, st, ct = np.sin(phi), np.cos(phi), np.sin(th), np.cos(th)
+            g = np.stack([wb * st, -wb * ct * sp, -wb * ct * cp, -gy * ct * cp + gz * ct * sp,
+                          gz * st + gx * ct * cp, -gx * ct * sp - gy * st], axis=-1)
+            force = tau_k - g
+        else:
+            force = np.broadcast_to(tau_k, nu.shape)
+        nn = (nu[..., :, None] * nu[..., None, :]).reshape(*nu.shape[:-1], -1)
+        if cur:
+            cs, sn = np.cos(p), np.sin(p)
+            vn, ve = vc[:, 0, None], vc[:, 1, None]
+            nuc = np.zeros_like(nu)
+            if d == 3:
+                nuc[..., 0], nuc[..., 1] = cs * vn + sn * ve, -sn * vn + cs * ve
+            else:
+                nuc[..., 0] = cs * ct * vn + sn * ct * ve
+                nuc[..., 1] = (-sn * cp + cs * st * sp) * vn + (cs * cp + sp * st * sn) * ve
+                nuc[..., 2] = (sn * sp + cs * cp * st) * vn + (-cs * sp + st * sn * cp) * ve
+            nur = nu - nuc
+            nnr = (nur[..., :, None] * nur[..., None, :]).reshape(*nur.shape[:-1], -1)
+            z = np.concatenate([np.broadcast_to(force, nu.shape), nn, nnr, nur, np.abs(nur) * nur], axis=-1)
+        else:
+            z = np.concatenate([force, nn, nu, np.abs(nu) * nu], axis=-1)
+        nu_dot = np.matmul(z, W)
+        if d == 3:
+            return nu_dot
+        p_, q_, r_ = nu[..., 3], nu[..., 4], nu[..., 5]
+        return np.concatenate([(p_ + (sp * q_ + cp * r_) * np.tan(th))[..., None],
+                               (cp * q_ - sp * r_)[..., None], nu_dot], axis=-1)
+
+    x = x0.copy()
+    out[:, :, 0] = x
+    with np.errstate(all="ignore"):
+        for k in range(L):
+            p0, pm, p1 = (psi[None, :, k], psi_mid[None, :, k], psi[None, :, k + 1]) if cur else (None,) * 3
+            k1 = f(x, tau[:, :, k], p0)
+            k2 = f(x + 0.5 * h * k1, tau_mid[:, :, k], pm)
+            k3 = f(x + 0.5 * h * k2, tau_mid[:, :, k], pm)
+            k4 = f(x + h * k3, tau[:, :, k + 1], p1)
+            x = x + (h / 6.0) * (k1 + 2.0 * (k2 + k3) + k4)
+            x = np.where(np.abs(x) < 1e6, x, np.nan)
+            out[:, :, k + 1] = x
+    assert K == out.shape[0]
