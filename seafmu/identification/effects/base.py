@@ -244,6 +244,14 @@ def static_force_speed(trial: Trial) -> bool:
     return trial.kind == "static" and trial.table == "force_speed"
 
 
+def not_a_damping_trial(trial: Trial, pendulum: str) -> str | None:
+    """Why a damping-term effect does not apply (None: a force-speed table, a decay or a step,
+    whose baseline is a damping law); ``pendulum`` says why the pendulum's own law excludes it."""
+    if static_force_speed(trial) or trial.kind in ("decay", "step", "decay2"):
+        return None
+    return pendulum if trial.kind == "pendulum" else "not a damping trial"
+
+
 def static_thrust(trial: Trial) -> bool:
     return trial.kind == "static" and trial.table == "thrust_rpm"
 

@@ -9,8 +9,8 @@ import numpy as np
 from seafmu.identification.effects.base import (
     CatalogueEffect,
     Hiding,
+    not_a_damping_trial,
     register,
-    static_force_speed,
     words,
 )
 
@@ -45,9 +45,9 @@ class DampingPower(CatalogueEffect):
         return {"p_v": [1.5, 2.5]}
 
     def applies(self, trial: Trial) -> str | None:
-        k = trial.kind
-        if not (static_force_speed(trial) or k in ("decay", "step", "decay2")):
-            return "not a damping trial" if k != "pendulum" else "the pendulum law fixes its exponents"
+        why = not_a_damping_trial(trial, "the pendulum law fixes its exponents")
+        if why:
+            return why
         if trial.baseline not in ("quadratic", "linear_quadratic"):
             return ("the baseline has no quadratic drag term whose exponent could differ (see "
                     "quadratic_damping)")

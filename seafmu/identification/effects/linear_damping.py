@@ -11,9 +11,9 @@ from seafmu.identification.effects.base import (
     CatalogueEffect,
     Hiding,
     fmt,
+    not_a_damping_trial,
     register,
     replace_matrix,
-    static_force_speed,
     unit,
     words,
 )
@@ -40,9 +40,9 @@ class LinearDamping(CatalogueEffect):
         return [{"d_L": x} for x in [0.1 * F / V, 0.5 * F / V]]
 
     def applies(self, trial: Trial) -> str | None:
-        k = trial.kind
-        if not (static_force_speed(trial) or k in ("decay", "step", "decay2")):
-            return "not a damping trial" if k != "pendulum" else "the pendulum law already has both terms"
+        why = not_a_damping_trial(trial, "the pendulum law already has both terms")
+        if why:
+            return why
         has = trial.baseline in ("linear", "linear_quadratic")
         return "the baseline already has this term" if has else None
 
