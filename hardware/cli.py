@@ -7,8 +7,10 @@ parameters), which enables ``--scenario``; this layer never imports it.
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING
 
-from .emulator import PlantParameters
+if TYPE_CHECKING:  # the emulator (plant, CAN, serial) is imported when the subcommand is added
+    from .emulator import PlantParameters
 
 
 def register(subparsers: argparse._SubParsersAction, scenario_params: PlantParameters | None = None) -> None:

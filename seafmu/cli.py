@@ -12,14 +12,25 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
-
-from seafmu.scenario import COUPLINGS, DEFAULT_SCENARIO
 
 if TYPE_CHECKING:
     from seafmu.master import StopRequest
     from seafmu.scenario import Scenario
+
+# The errors that end a command with one line (exit 2): (module, class). Looked up among the
+# modules this command imported (_user_errors), so naming them costs no import.
+USER_ERRORS = (
+    ("seafmu.scenario", "ScenarioError"),
+    ("seafmu.master", "SimulationError"),
+    ("seafmu.components.vessel_spec", "VesselFileError"),
+    ("seafmu.identification.trial", "TrialError"),
+    ("seafmu.outdir", "OutputFolderError"),
+    ("seafmu.export", "ExportError"),
+    ("seafmu.sweep.study", "StudyError"),
+)
 
 
 def one_line(text: str) -> str:
@@ -172,18 +183,24 @@ def _run(args: argparse.Namespace, stop: StopRequest) -> int:
     return 0 if data["checks_passed"] else 1
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="seafmu", description="Marine GNC co-simulation with FMI 2.0 FMUs")
-    sub = parser.add_subparsers(dest="command", required=True)
+def _add_build(sub: argparse._SubParsersAction) -> None:
     b = sub.add_parser("build", help="build the FMUs (only those whose sources changed)")
     b.add_argument("--vessel", action="append", help="only this vessel (repeatable)")
     b.add_argument("--force", action="store_true", help="rebuild even if up to date")
     b.add_argument("--link", action="append", metavar="PROFILE",
                    help="also build the hardware link of this profile as an FMU (for other FMI tools)")
     b.set_defaults(fn=_cmd_build)
+
+
+def _add_check(sub: argparse._SubParsersAction) -> None:
     c = sub.add_parser("check", help="validate a scenario without running it")
     c.add_argument("scenario")
     c.set_defaults(fn=_cmd_check)
+
+
+def _add_run(sub: argparse._SubParsersAction) -> None:
+    from seafmu.scenario import COUPLINGS, DEFAULT_SCENARIO
+
     r = sub.add_parser("run", help=f"run a scenario (default: {DEFAULT_SCENARIO})")
     r.add_argument("scenario", nargs="?", default=None)
     r.add_argument("-o", "--output", help="output folder (default: results/<scenario>)")
@@ -201,42 +218,102 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("--format", choices=("csv", "parquet"), default="csv",
                    help="parquet: also write results.parquet beside results.csv")
     r.set_defaults(fn=_cmd_run)
-    from seafmu.sweep.cli import register as register_sweep
 
-    register_sweep(sub)
+
+def _add_export(sub: argparse._SubParsersAction) -> None:
     x = sub.add_parser("export", help="write a scenario for other engines: SSP 1.0 file and/or OSP folder")
     x.add_argument("scenario")
     x.add_argument("--ssp", metavar="FILE.ssp",
                    help="write an SSP 1.0 archive (FMUs, connections, parameters)")
     x.add_argument("--osp", metavar="DIR", help="write OspSystemStructure.xml and the FMUs into DIR")
     x.set_defaults(fn=_cmd_export)
+
+
+def _add_sweep(sub: argparse._SubParsersAction) -> None:
+    from seafmu.sweep.cli import register
+
+    register(sub)
+
+
+def _add_identification(sub: argparse._SubParsersAction) -> None:
+    from seafmu.identification.cli import register
+
+    register(sub)
+
+
+def _add_emulate(sub: argparse._SubParsersAction) -> None:
     from seafmu.emulate import scenario_plant_parameters
-    from seafmu.hardware.cli import register as register_hardware
-    from seafmu.identification.cli import register as register_identification
-    from seafmu.testplan.cli import add_parser as add_testplan
-    from seafmu.testplan.cli import run as run_testplan
+    from seafmu.hardware.cli import register
 
-    register_identification(sub)
-    register_hardware(sub, scenario_params=scenario_plant_parameters)
-    add_testplan(sub).set_defaults(fn=run_testplan)
-    args = parser.parse_args(argv)
-    from seafmu.components.vessel_spec import VesselFileError
-    from seafmu.export import ExportError
-    from seafmu.identification.trial import TrialError
-    from seafmu.master import SimulationError
-    from seafmu.outdir import OutputFolderError
-    from seafmu.scenario import ScenarioError
-    from seafmu.sweep.study import StudyError
+    register(sub, scenario_params=scenario_plant_parameters)
 
+
+def _add_testplan(sub: argparse._SubParsersAction) -> None:
+    from seafmu.testplan.cli import add_parser, run
+
+    add_parser(sub).set_defaults(fn=run)
+
+
+# Every subcommand, in the order --help lists them: (the names one function adds, the function).
+# A command line naming one registers that one only, so `seafmu run` imports no emulator, sweep
+# or identification code (up to a second of imports; tests/test_startup.py).
+COMMANDS: tuple[tuple[tuple[str, ...], Callable[[argparse._SubParsersAction], None]], ...] = (
+    (("build",), _add_build),
+    (("check",), _add_check),
+    (("run",), _add_run),
+    (("sweep",), _add_sweep),
+    (("export",), _add_export),
+    (("identify", "diagnose"), _add_identification),
+    (("emulate",), _add_emulate),
+    (("testplan",), _add_testplan),
+)
+
+
+def all_commands() -> tuple[str, ...]:
+    return tuple(name for names, _ in COMMANDS for name in names)
+
+
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The parser of ``seafmu``: given the subcommand a command line names, with that subcommand
+    only; ``None`` (help, an unknown or missing command), with every one, so --help and the
+    invalid-choice message list them all. Either way the output for the same command line is the
+    same."""
+    known = command in all_commands()
+    parser = argparse.ArgumentParser(prog="seafmu", description="Marine GNC co-simulation with FMI 2.0 FMUs")
+    # Given one command, the usage line (of an unrecognised-argument error) still lists them all.
+    every = "{" + ",".join(all_commands()) + "}" if known else None
+    sub = parser.add_subparsers(dest="command", required=True, metavar=every)
+    for names, add in COMMANDS:
+        if not known or command in names:
+            add(sub)
+    return parser
+
+
+def _user_errors() -> tuple[type[BaseException], ...]:
+    """The one-line errors (USER_ERRORS) whose modules are loaded: an error class of a module
+    this command never imported cannot have been raised."""
+    found: list[type[BaseException]] = [OSError]
+    for module, name in USER_ERRORS:
+        cls = getattr(sys.modules.get(module), name, None)
+        if cls is not None:
+            found.append(cls)
+    return tuple(found)
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    command = argv[0] if argv and not argv[0].startswith("-") else None
+    args = build_parser(command).parse_args(argv)
     try:
         return args.fn(args)
-    except (ScenarioError, SimulationError, VesselFileError, TrialError, OutputFolderError, ExportError,
-            StudyError, OSError) as exc:
-        print(f"seafmu: error: {one_line(str(exc))}", file=sys.stderr)
-        return 2
     except KeyboardInterrupt:
         print("seafmu: interrupted", file=sys.stderr)
         return 130
+    except Exception as exc:
+        if not isinstance(exc, _user_errors()):
+            raise
+        print(f"seafmu: error: {one_line(str(exc))}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":
