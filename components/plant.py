@@ -22,6 +22,7 @@ from .allocation import FORCE_UNIT
 from .block import Block, Interface, Signal
 from .dynamics import wrap_angle
 from .environment import GaussMarkovCurrent
+from .kernels import plant as plant_kernel
 from .sensors import SensorSuite, mag_heading_error
 from .vessel_model import VesselModel
 from .vessel_spec import VesselSpec, state_unit
@@ -175,6 +176,12 @@ class PlantBlock(Block):
         self._o_course_sog = o.at(["course", "sog"])
         self._o_env = o.at(["wave_elevation", *(f"tau_wave_{t}" for t in vessel.tau_names), "current_north",
                             "current_east", "mag_heading_error", "pos_fix_outliers", "pos_fix_dropout"])
+        # the same positions for the compiled step, in its order (kernels/plant.write_outputs)
+        self._layout = np.concatenate([np.arange(self._n_out)[s] for s in (
+            self._o_x, self._o_thrust, self._o_course_sog, self._o_env, self._o_sensors)]).astype(np.int64)
+        # n_max and the speed a failed drive is stuck at (NaN: not failed), for the compiled step
+        self._drive = np.vstack([np.asarray(vessel.thrusters.n_max, dtype=float),
+                                 np.full(vessel.thrusters.count, np.nan)])
         self._x = self._model.initial_state(np.array(x0[:d]), np.array(x0[d:]))
         for i in self._model.angle_index:
             self._x[i] = wrap_angle(self._x[i])
@@ -236,7 +243,7 @@ class PlantBlock(Block):
         """Course and speed over ground: what a surface vessel's crab-angle compensation aims at."""
         d = self.vessel.dof
         vn, ve = self._model.horizontal_velocity(self._x)
-        sog = math.hypot(vn, ve)
+        sog = float(np.hypot(vn, ve))  # libm's hypot, as the compiled step (math.hypot may differ by 1 ulp)
         course = math.atan2(ve, vn) if sog > 1e-6 else float(self._x[d - 1])
         return [course, sog]
 
@@ -244,8 +251,39 @@ class PlantBlock(Block):
         return self._y.copy()
 
     def step(self, t: float, h: float, u: np.ndarray) -> np.ndarray:
+        """One compiled call (``kernels/plant.step``) on water; the reference form on land."""
         if not (math.isfinite(h) and h > 0.0):
             raise ValueError(f"step size h must be finite and > 0, got {h!r}")
+        if self._land_mode and self._land is not None:
+            return self._step_reference(t, h, u)
+        if type(u) is not np.ndarray or u.shape != self._in_shape or u.dtype != np.float64:
+            u = np.array(self._inputs(u), dtype=float)
+        cur = self._current
+        vcn, vce = cur.ned()
+        if cur.variation != 0.0:  # the deviation draws: only once the inputs are known to be good
+            if not math.isfinite(sum(u.tolist())):
+                self._inputs(u)
+            cur.step(h)
+            vcn1, vce1 = cur.ned()
+        else:
+            vcn1, vce1 = vcn, vce
+        p = self._model.kernel_params
+        f = self._waves.field
+        s = self._sensors
+        res = plant_kernel.step(
+            t, h, u, self._drive, self._x, max(1, math.ceil(h / self._substep - 1e-9)), vcn, vce, vcn1, vce1,
+            p.K if self._K is None else self._K, p.MS, p.MAL, p.ML, p.g6, p.th, p.flags, p.angle_index,
+            f.hs > 0.0, f.omega, f.k, f.phase, f.amp, f._acc_amp, f._cd, f._sd, self._waves.W, s.s_int,
+            s.s_conf, s.s_int_mut, s.s_float_mut, s.noise, s.uniform, self._layout, self._y)
+        if res < 0:
+            self._inputs(u)  # raises, naming the input
+        self._t = t + h
+        if res & plant_kernel.REFILL:
+            s.refill()
+        return self._y.copy()
+
+    def _inputs(self, u: np.ndarray | list[float]) -> list[float]:
+        """``u`` as a list of floats; ValueError naming what is wrong (count, a non-finite value)."""
         ul = u.tolist() if isinstance(u, np.ndarray) else [float(c) for c in u]
         names = self.inp.names
         if len(ul) != len(names) or (ul and isinstance(ul[0], list)):
@@ -254,6 +292,12 @@ class PlantBlock(Block):
             bad = [f"{n}={v}" for n, v in zip(names, ul, strict=True) if not math.isfinite(v)]
             if bad:
                 raise ValueError(f"non-finite input {', '.join(bad)}")
+        return ul
+
+    def _step_reference(self, t: float, h: float, u: np.ndarray) -> np.ndarray:
+        """The step in Python and NumPy around ``VesselModel.rk4``: what ``kernels/plant.step``
+        computes, and the land mode's step (``tests/test_kernels.py`` holds them bit-identical)."""
+        ul = self._inputs(u)
         model = self._model
         steps = max(1, math.ceil(h / self._substep - 1e-9))
         vcn, vce = self._current.ned()
@@ -275,7 +319,7 @@ class PlantBlock(Block):
         self._current.step(h)
         self._t = t + h
         changed = self._sensors.update(t, h, self._x[: 2 * self.vessel.dof])
-        self._y = self._outputs(changed)
+        self._y[:] = self._outputs(changed)
         return self._y.copy()
 
     # -- thruster failures -----------------------------------------------------------------------
@@ -288,6 +332,9 @@ class PlantBlock(Block):
             elif mode == 2:
                 stuck.append((i, float(self.params[f"fail_value_{i + 1}"])))
         self._stuck = stuck
+        self._drive[1] = np.nan
+        for i, value in stuck:
+            self._drive[1, i] = value
 
     def _apply_efficiency(self) -> None:
         """Fold the thruster efficiencies into the model's K (None when all are 1: the nominal K)."""
