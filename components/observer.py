@@ -211,12 +211,28 @@ class ObserverBlock(Block):
             )
             self._sensors.append((inp.at(f"meas_{c}" for c in s.channels), inp[f"{s.name}_count"], ch))
         self._tau_in = inp.at(f"tau_alloc_{t}" for t in vessel.tau_names)
+        # the same for the compiled step (kernels/ekf.step): one padded row per sensor
+        W = max((len(ch.idx) for _, _, ch in self._sensors), default=0)
+        self._sens = np.zeros((len(self._sensors), 3 + 3 * W), dtype=np.int64)
+        self._sens_var = np.ones((len(self._sensors), W))
+        for i, (meas, count, ch) in enumerate(self._sensors):
+            m = len(ch.idx)
+            row = self._sens[i]
+            row[:3] = count, m, int(ch.pos_fix) | 2 * int(ch.wave) | 4 * int(ch.has_eta)
+            row[3 : 3 + m] = np.arange(len(inp))[meas]
+            row[3 + W : 3 + W + m] = ch.idx
+            row[3 + 2 * W : 3 + 2 * W + m] = ch.angle
+            self._sens_var[i, :m] = ch.var
+        self._tau_idx = np.arange(len(inp))[self._tau_in].astype(np.int64)
         o = self.out
         self._n_out = len(o)
         self._o_state = o.at([f"{n}_hat" for n in vessel.eta_names + vessel.nu_names]
                              + [f"bias_{t}_hat" for t in vessel.tau_names])
         self._o_std, self._o_rej, self._o_dr = o["position_std"], o["pos_fixes_rejected"], o["dead_reckoning"]
         self._o_wave = o.at(f"wave_{vessel.eta_names[i]}_hat" for i in self._wdof)
+        pos = np.arange(self._n_out)
+        self._layout = np.concatenate([pos[self._o_state], [self._o_std], pos[self._o_wave]]).astype(np.int64)
+        self._y = np.zeros(self._n_out)
 
         # Constant parts of the Jacobian A = df/dx.
         self._A = np.zeros((n, n))
@@ -270,6 +286,7 @@ class ObserverBlock(Block):
         self._gate = float(p["innovation_gate"])
         self._gate_p = float(p["gate_probability"])
         self._pos_thr = {m: chi2_quantile(self._gate_p, m) for m in (1, 2, 3)} if self._gate_p > 0 else {}
+        self._thr = np.array([self._threshold(ch, len(ch.idx)) for _, _, ch in self._sensors])
         self._max_rej = int(float(p["gate_max_rejections"]))
         self._dr_timeout = float(p["dr_timeout"])
 
@@ -465,15 +482,50 @@ class ObserverBlock(Block):
         return self.output()
 
     def step(self, t: float, h: float, u: np.ndarray) -> np.ndarray:
+        """One compiled call (``kernels/ekf.step``: prediction, the plain updates, the outputs);
+        what it leaves (a first fix, the wave filter's updates, a gated sample) goes on here."""
+        if type(u) is not np.ndarray or u.shape != self._in_shape or u.dtype != np.float64:
+            u = self._checked(u)
+        k = max(1, math.ceil(h / PREDICT_DT_MAX - 1e-9))
+        y = self._y
+        res = ekf_kernel.step(
+            u, self.x, self.P, self._tau_idx, k, h / k, self._Qc, self.d, self.nw, self._inv_tb,
+            self.Minv, self._MinvG, self._MinvDL, self._MinvDQ, self._g6_arr, self._Aw, self._A,
+            self._angle_arr, self._sens, self._sens_var, self._thr, self._r_scale, self._last_count,
+            self._all_initialised, self._layout, y)
+        if res < 0:
+            self._checked(u)  # raises, naming the input
+        self._since_fix += h
+        if res & ekf_kernel.POS_ACCEPTED:
+            self._consecutive = 0
+            self._since_fix = 0.0
+        i = res >> 2
+        if i < len(self._sensors):  # the kernel stopped at sensor i
+            if res & ekf_kernel.REJECTED:
+                meas, _, ch = self._sensors[i]
+                if self._rejected(u[meas].copy(), ch) and ch.pos_fix:
+                    self._since_fix = 0.0
+                i += 1
+            self._update_sensors(u, i)
+            return self.output()
+        y[self._o_rej] = self.pos_rejected
+        y[self._o_dr] = 1.0 if self._since_fix > self._dr_timeout else 0.0
+        return y.copy()
+
+    def _step_reference(self, t: float, h: float, u: np.ndarray) -> np.ndarray:
+        """The step as separate calls (``predict``, ``_update`` per sensor, ``output``): what
+        ``kernels/ekf.step`` computes (``tests/test_kernels.py``: bit-identical)."""
         u = self._checked(u)
         self._since_fix += h
         self.predict(h, u[self._tau_in])
         self._update_sensors(u)
         return self.output()
 
-    def _update_sensors(self, u: np.ndarray) -> None:
-        """Sequential update with every sensor whose sample counter moved."""
+    def _update_sensors(self, u: np.ndarray, first: int = 0) -> None:
+        """Sequential update with every sensor (from ``first`` on) whose sample counter moved."""
         for i, (meas, count, ch) in enumerate(self._sensors):
+            if i < first:
+                continue
             c = u[count]
             if c != self._last_count[i]:
                 self._last_count[i] = c

@@ -375,3 +375,91 @@ def update_measured(
     y = innovation(z, x, idx, angle)
     var = var0 * r_scale
     return update_selection(x, P, idx, y, var, threshold, angle_index)
+
+
+POS_ACCEPTED = 1  # step's flags: a position fix was accepted
+REJECTED = 2  # the update of sensor (result >> 2) was rejected by its gate (Python counts it)
+
+
+@kernel
+def step(
+    u: np.ndarray,
+    x: np.ndarray,
+    P: np.ndarray,
+    tau_in: np.ndarray,
+    k: int,
+    dt: float,
+    Qc: np.ndarray,
+    d: int,
+    nw: int,
+    inv_tb: float,
+    Minv: np.ndarray,
+    MinvG: np.ndarray,
+    MinvDL: np.ndarray,
+    MinvDQ: np.ndarray,
+    g6: np.ndarray,
+    Aw: np.ndarray,
+    A: np.ndarray,
+    angle_index: np.ndarray,
+    sens: np.ndarray,
+    sens_var: np.ndarray,
+    thr: np.ndarray,
+    r_scale: float,
+    last_count: np.ndarray,
+    all_initialised: bool,
+    layout: np.ndarray,
+    y: np.ndarray,
+) -> int:
+    """The observer's step (``ObserverBlock.step``): input check, ``predict`` with tau = u[tau_in],
+    then ``update_measured`` for every sensor whose count input moved, in order, and the outputs
+    that depend on x and P into y (``layout``: 3 dof state estimates, position_std, the wave
+    displacements).
+
+    ``sens`` row i: count input, channels m, flags (1 position fix, 2 wave-filter sensor, 4 measures
+    position/attitude), then the m measurement inputs, the m state indices, the m angle flags (each
+    group padded to the widest sensor); ``sens_var`` its noise variances, ``thr`` its gate. Stops
+    at a sensor that needs the Python path (a first fix, the wave filter's general H) or that its
+    gate rejected, and returns ``(i << 2) | flags`` (i = number of sensors when all were done;
+    flags POS_ACCEPTED, REJECTED); -1 for a non-finite input (nothing changed).
+    """
+    for i in range(u.shape[0]):
+        if not math.isfinite(u[i]):
+            return -1
+    tau = np.empty(tau_in.shape[0])
+    for i in range(tau_in.shape[0]):
+        tau[i] = u[tau_in[i]]
+    predict(x, P, tau, k, dt, Qc, d, nw, inv_tb, Minv, MinvG, MinvDL, MinvDQ, g6, Aw, A, angle_index)
+    S = sens.shape[0]
+    W = (sens.shape[1] - 3) // 3
+    flags = 0
+    done = S
+    for s in range(S):
+        c = u[sens[s, 0]]
+        if c == last_count[s]:
+            continue
+        m, kind = sens[s, 1], sens[s, 2]
+        if (kind & 4 and not all_initialised) or (kind & 2 and nw > 0):
+            done = s  # Python: first fix, wave filter
+            break
+        last_count[s] = c
+        z = np.empty(m)
+        idx = np.empty(m, dtype=np.int64)
+        angle = np.empty(m, dtype=np.bool_)
+        for j in range(m):
+            z[j] = u[sens[s, 3 + j]]
+            idx[j] = sens[s, 3 + W + j]
+            angle[j] = sens[s, 3 + 2 * W + j] != 0
+        ok, _ = update_measured(x, P, idx, z, angle, sens_var[s, :m].copy(), r_scale, thr[s], angle_index)
+        if not ok:
+            flags |= REJECTED
+            done = s
+            break
+        if kind & 1:
+            flags |= POS_ACCEPTED
+    n3 = 3 * d
+    for i in range(n3):
+        y[layout[i]] = x[i]
+    y[layout[n3]] = math.sqrt(P[0, 0] + P[1, 1])
+    for j in range(layout.shape[0] - n3 - 1):
+        y[layout[n3 + 1 + j]] = x[n3 + j] if nw else 0.0
+    return (done << 2) | flags
