@@ -253,6 +253,10 @@ class DPPidController(ControllerBlock):
         self._coriolis = vessel.coriolis != "none"
         self._guidance_name = vessel.gnc.guidance if vessel.gnc is not None else "none"
         self.guidance: PathGuidance | None = None
+        # the same positions as index arrays, for the compiled held step (kernels/control.dp_block_step)
+        pos_in, pos_out = np.arange(len(inp)), np.arange(len(out))
+        self._k_in = tuple(pos_in[s].astype(np.int64) for s in (self._in_eta, self._in_nu, self._in_ref))
+        self._k_out = tuple(pos_out[s].astype(np.int64) for s in (self._o_tau, self._o_eta_d))
         self._check_all()
 
     def _apply_params(self) -> None:
@@ -355,6 +359,33 @@ class DPPidController(ControllerBlock):
         return self._M @ nu_dd + cor + vs.D_L @ nu_d + vs.D_Q @ (np.abs(nu_d) * nu_d)
 
     # -- the law -------------------------------------------------------------------------------
+    def step(self, t: float, h: float, u: np.ndarray) -> np.ndarray:
+        """The usual step (``_held_step``'s conditions, no switch) in one compiled call from the input
+        vector to the output vector; anything else, and a bad input, through ``ControllerBlock.step``."""
+        ref, mode = self.ref, self.mode
+        if (type(u) is np.ndarray and u.shape == self._in_shape and u.dtype == np.float64
+                and self._active is not None and self._active[0] == mode and self._started
+                and not (self._latch_any or self._offset_on) and ref.exact and mode != MODE_WAYPOINT
+                and mode not in self._tab.any_free):
+            d = self.dof
+            x, v, a, seen = np.empty(d), np.empty(d), np.empty(d), np.empty(d)
+            y = np.zeros(self._n_out)
+            w2, two_zw = ref.rates()
+            in_eta, in_nu, in_ref = self._k_in
+            o_tau, o_eta_d = self._k_out
+            if control_kernel.dp_block_step(u, in_eta, in_nu, in_ref, h, ref.x, ref.v, ref.coefficients(h),
+                                            w2, two_zw, ref.angles, x, v, a, self.z, self.kp, self.kd,
+                                            self.ki, self._angle_mask, self.tau_max, self._z_max, seen, o_tau,
+                                            o_eta_d, y):
+                ref.x, ref.v, ref.a = x, v, a
+                self._ref_seen = seen
+                if self.guidance is not None:
+                    y[self._o_corner] = self.guidance.corner_error
+                self._stepped = True
+                self._y = y
+                return y.copy()
+        return super().step(t, h, u)
+
     def _held_step(self, h: float, u: np.ndarray, eta: np.ndarray, nu: np.ndarray,
                    eta_ref: np.ndarray) -> np.ndarray:
         """The usual step: every DOF held at its setpoint, no switch, no latch, no blend offset, an

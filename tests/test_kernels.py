@@ -987,3 +987,38 @@ def test_observer_step_equals_its_reference_form(vessel, case: int) -> None:
         assert rejected > 0  # the gate's path was taken
     with pytest.raises(ValueError, match="not finite"):
         a.step(20.0, 0.05, np.full(len(o_in), np.nan))
+
+
+@pytest.mark.parametrize("name", ["minerva2", "supply"])
+def test_dp_controller_step_equals_its_reference_form(name: str) -> None:
+    """The DP controller's held step as one compiled call from input to output vector equals the
+    general step (``ControllerBlock.step``: mode key, ``_step_law``, ``_held_step``) bit for bit,
+    through setpoint changes, a mode switch and back (the switch steps go the general way)."""
+    from seafmu.components.controller import ControllerBlock
+
+    vessel = load_vessel(name)
+    a, b = ControllerBlock(vessel, {}), ControllerBlock(vessel, {})
+    names = a.inp.names
+    rng = np.random.default_rng(3)
+    u = np.zeros(len(names))
+    u0 = u.copy()
+    np.testing.assert_array_equal(a.start(u0), b.start(u0))
+    fast = 0
+    for k in range(300):
+        u = u + rng.normal(size=len(u)) * 0.05
+        if k == 100:
+            u[names.index("north_ref")] = 3.0
+        for blk in (a, b):
+            if k == 150:
+                blk.set_parameter("mode", 4)  # joystick: the general path
+            if k == 200:
+                blk.set_parameter("mode", 0)
+        before = a._active
+        ya, yb = a.step(k * 0.05, 0.05, u), ControllerBlock.step(b, k * 0.05, 0.05, u)
+        fast += before == a._active and a.mode == 0
+        np.testing.assert_array_equal(ya, yb, err_msg=f"step {k}")
+    np.testing.assert_array_equal(a.z, b.z)
+    np.testing.assert_array_equal(a.ref.x, b.ref.x)
+    assert fast > 200
+    with pytest.raises(ValueError, match="not finite"):
+        a.step(20.0, 0.05, np.full(len(u), np.nan))

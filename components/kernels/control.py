@@ -207,3 +207,55 @@ def dp_step(
     tau_new = np.empty(d)
     pid_force(eta, nu, x_out, v_out, z, kp, kd, ki, angle, Jm, eta_dot, e, tau_new)
     saturate_integrate(h, e, tau_new, tau_max, ki, z, z_max, Jm, tau)
+
+
+@kernel
+def dp_block_step(
+    u: np.ndarray,
+    in_eta: np.ndarray,
+    in_nu: np.ndarray,
+    in_ref: np.ndarray,
+    h: float,
+    ref_x: np.ndarray,
+    ref_v: np.ndarray,
+    coef: np.ndarray,
+    w2: np.ndarray,
+    two_zw: np.ndarray,
+    ref_angle: np.ndarray,
+    x_out: np.ndarray,
+    v_out: np.ndarray,
+    a_out: np.ndarray,
+    z: np.ndarray,
+    kp: np.ndarray,
+    kd: np.ndarray,
+    ki: np.ndarray,
+    angle: np.ndarray,
+    tau_max: np.ndarray,
+    z_max: np.ndarray,
+    ref_seen: np.ndarray,
+    o_tau: np.ndarray,
+    o_eta_d: np.ndarray,
+    y: np.ndarray,
+) -> bool:
+    """``dp_step`` from the controller's input vector to its output vector (``DPPidController.step``
+    with every DOF held): False, with nothing changed, if an input is not finite; else eta, nu
+    and eta_ref gathered from u, the step, eta_ref into ``ref_seen``, tau and eta_d into y."""
+    for i in range(u.shape[0]):
+        if not math.isfinite(u[i]):
+            return False
+    d = in_eta.shape[0]
+    eta, nu, eta_ref = np.empty(d), np.empty(in_nu.shape[0]), np.empty(d)
+    for i in range(d):
+        eta[i] = u[in_eta[i]]
+        eta_ref[i] = u[in_ref[i]]
+        ref_seen[i] = eta_ref[i]
+    for i in range(in_nu.shape[0]):
+        nu[i] = u[in_nu[i]]
+    tau = np.empty(o_tau.shape[0])
+    dp_step(h, eta, nu, eta_ref, ref_x, ref_v, coef, w2, two_zw, ref_angle, x_out, v_out, a_out, z, kp, kd,
+            ki, angle, tau_max, z_max, tau)
+    for i in range(o_tau.shape[0]):
+        y[o_tau[i]] = tau[i]
+    for i in range(d):
+        y[o_eta_d[i]] = x_out[i]
+    return True
