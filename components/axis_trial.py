@@ -36,6 +36,11 @@ from .dynamics import J, rpsi
 class AxisTrialController(DPPidController):
     """One free DOF with an open-loop force (joystick), the others held at the starting pose."""
 
+    def step(self, t: float, h: float, u: np.ndarray) -> np.ndarray:
+        """The block's generic step, which calls ``_step_law`` below: a shortcut ``dp_pid`` takes for
+        its own law (a compiled held step) would skip this variant's."""
+        return super(DPPidController, self).step(t, h, u)
+
     def _start_law(self, u: np.ndarray) -> None:
         super()._start_law(u)
         self._hold = u[self._in_eta].copy()
