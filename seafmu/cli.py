@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from seafmu.master import StopRequest
+    from seafmu.plots import Plotter
     from seafmu.scenario import Scenario
 
 # The errors that end a command with one line (exit 2): (module, class). Looked up among the
@@ -111,13 +112,15 @@ def _cmd_export(args: argparse.Namespace) -> int:
 
 def _cmd_run(args: argparse.Namespace) -> int:
     from seafmu.master import StopRequest, stop_on_signals
+    from seafmu.plots import Plotter
 
     stop = StopRequest()
-    with stop_on_signals(stop):  # from here on, SIGINT/SIGTERM/SIGHUP only ask the run to stop
-        return _run(args, stop)
+    # The figures' worker starts first: it imports matplotlib while the scenario loads and runs.
+    with Plotter() as plotter, stop_on_signals(stop):  # from here on, SIGINT/SIGTERM/SIGHUP only
+        return _run(args, stop, plotter)                # ask the run to stop
 
 
-def _run(args: argparse.Namespace, stop: StopRequest) -> int:
+def _run(args: argparse.Namespace, stop: StopRequest, plotter: Plotter | None = None) -> int:
     from seafmu.master import SimulationError, run
     from seafmu.outdir import RunFolder
     from seafmu.report import write_failure_report, write_placeholder_report, write_report
@@ -160,7 +163,8 @@ def _run(args: argparse.Namespace, stop: StopRequest) -> int:
             from seafmu.results import write_parquet
 
             write_parquet(result, out / "results.parquet")
-        report = write_report(result, checks, data, out)  # last: a report means every file is complete
+        # last: a report means every file (figures included) is complete
+        report = write_report(result, checks, data, out, plotter)
     print(f"{sc.name}: {result.t_end:g} s simulated in {result.wall_time:.2f} s "
           f"(real-time factor {result.realtime_factor:.0f}, mode {mode}, {sc.coupling} coupling)")
     for name, us in data["us_per_step"].items():

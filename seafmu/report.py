@@ -1,4 +1,5 @@
-"""Plots (PNG) and the Markdown report of a run: trajectory, states vs references, thruster use.
+"""The Markdown report of a run and its figures (PNG, drawn by ``seafmu.plots``): trajectory,
+states vs references, thruster use, allocation error.
 
 Every file is written atomically (a temporary name, then ``os.replace``), the report last: a
 report.md that is not the placeholder means every file it names is complete. The placeholder,
@@ -13,112 +14,36 @@ import os
 from pathlib import Path
 from typing import Any
 
-import matplotlib
-
-matplotlib.use("Agg")  # files only: runs on machines with no display
-import matplotlib.pyplot as plt
 import numpy as np
 
+from seafmu import plots
 from seafmu.master import RunResult
-from seafmu.outdir import atomic_path, atomic_write_text
+from seafmu.outdir import atomic_write_text
 from seafmu.results import CheckResult
 
-ANGLES = {"roll", "pitch", "yaw"}
 PLACEHOLDER_MARK = "<!-- seafmu: run in progress -->"
 
 
-def _save(fig: Any, path: Path) -> None:
-    try:
-        with atomic_path(path) as tmp:
-            fig.savefig(tmp, dpi=110, format="png")
-    finally:
-        plt.close(fig)
+def series(result: RunResult) -> plots.Series:
+    """What the figures read of a run."""
+    return plots.Series(result.scenario.name, result.time, result.signals)
 
 
-def _find(result: RunResult, var: str) -> str | None:
-    """The first recorded 'instance.var' with this variable name."""
-    return next((k for k in result.signals if k.split(".", 1)[1] == var), None)
-
-
+# The figures one by one (seafmu.plots draws them; matplotlib is imported when one is drawn).
 def plot_trajectory(result: RunResult, path: Path) -> bool:
-    n, e = _find(result, "north"), _find(result, "east")
-    if n is None or e is None:
-        return False
-    fig, ax = plt.subplots(figsize=(6, 6))
-    ax.plot(result.signals[e], result.signals[n], label="true", lw=1.5)
-    nh, eh = _find(result, "north_hat"), _find(result, "east_hat")
-    if nh and eh:
-        ax.plot(result.signals[eh], result.signals[nh], "--", label="estimated", lw=1)
-    nr, er = _find(result, "north_ref"), _find(result, "east_ref")
-    if nr and er:
-        ax.plot(result.signals[er], result.signals[nr], "k+", ms=10, label="setpoints")
-    ax.plot(result.signals[e][0], result.signals[n][0], "go", label="start")
-    ax.set_xlabel("east [m]")
-    ax.set_ylabel("north [m]")
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.grid(True, alpha=0.3)
-    ax.legend()
-    ax.set_title(f"{result.scenario.name}: trajectory (NED)")
-    fig.tight_layout()
-    _save(fig, path)
-    return True
+    return plots.trajectory(series(result), path)
 
 
 def plot_states(result: RunResult, path: Path) -> bool:
-    from seafmu.components.vessel_spec import ETA_NAMES, NU_NAMES
-
-    names = [n for n in ETA_NAMES[6] + NU_NAMES[6] if _find(result, n)]
-    eta = [n for n in names if n in ETA_NAMES[6]]
-    if not eta:
-        return False
-    fig, axes = plt.subplots(len(eta), 1, figsize=(9, 1.9 * len(eta) + 0.6), sharex=True, squeeze=False)
-    t = result.time
-    for ax, n in zip(axes[:, 0], eta, strict=True):
-        scale, unit = (180 / np.pi, "deg") if n in ANGLES else (1.0, "m")
-        for suffix, style, label in (("", "-", "true"), ("_hat", "--", "estimate"), ("_d", ":", "desired"),
-                                     ("_ref", "-", "reference")):
-            key = _find(result, n + suffix)
-            if key is None:
-                continue
-            y = result.signals[key] * scale
-            kw: dict[str, Any] = {"lw": 0.8} if suffix == "_ref" else {"lw": 1.2}
-            if suffix == "_ref":
-                kw["color"] = "k"
-                kw["alpha"] = 0.5
-            ax.plot(t, y, style, label=label, **kw)
-        ax.set_ylabel(f"{n} [{unit}]")
-        ax.grid(True, alpha=0.3)
-    axes[0, 0].legend(loc="best", fontsize=8, ncol=4)
-    axes[-1, 0].set_xlabel("time [s]")
-    fig.suptitle(f"{result.scenario.name}: states vs references")
-    fig.tight_layout()
-    _save(fig, path)
-    return True
+    return plots.states(series(result), path)
 
 
 def plot_thrusters(result: RunResult, path: Path) -> bool:
-    speeds = sorted((k for k in result.signals if k.split(".", 1)[1].startswith("n_")
-                     and k.split(".", 1)[1][2:].isdigit()), key=lambda k: int(k.rsplit("_", 1)[1]))
-    thrusts = sorted((k for k in result.signals if k.split(".", 1)[1].startswith("thrust_")
-                      and k.split(".", 1)[1][7:].isdigit()), key=lambda k: int(k.rsplit("_", 1)[1]))
-    if not speeds and not thrusts:
-        return False
-    fig, axes = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
-    for k in speeds:
-        axes[0].plot(result.time, result.signals[k], lw=1, label=k.split(".", 1)[1])
-    for k in thrusts:
-        axes[1].plot(result.time, result.signals[k], lw=1, label=k.split(".", 1)[1])
-    axes[0].set_ylabel("shaft speed [rev/s]")
-    axes[1].set_ylabel("thrust [N]")
-    axes[1].set_xlabel("time [s]")
-    for ax in axes:
-        ax.grid(True, alpha=0.3)
-        if ax.get_legend_handles_labels()[0]:  # a hardware link reports no thrust: no empty legend
-            ax.legend(fontsize=7, ncol=4, loc="best")
-    fig.suptitle(f"{result.scenario.name}: thruster use")
-    fig.tight_layout()
-    _save(fig, path)
-    return True
+    return plots.thrusters(series(result), path)
+
+
+def plot_allocation(result: RunResult, path: Path) -> bool:
+    return plots.allocation(series(result), path)
 
 
 def allocation_table(result: RunResult) -> list[str]:
@@ -139,23 +64,6 @@ def allocation_table(result: RunResult) -> list[str]:
                     f"{'' if ind is None else f'{np.nansum(ind):.4g}'} | "
                     f"{'' if en is None else f'{np.nanmean(en):.4g}'} |")
     return rows
-
-
-def plot_allocation(result: RunResult, path: Path) -> bool:
-    keys = sorted(k for k in result.signals if k.endswith(".alloc_error"))
-    if not keys:
-        return False
-    fig, ax = plt.subplots(figsize=(9, 4))
-    for k in keys:
-        ax.plot(result.time, result.signals[k], lw=1.2, label=k.split(".", 1)[0])
-    ax.set_xlabel("time [s]")
-    ax.set_ylabel("allocation error ‖Bu − τ‖")
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=8)
-    ax.set_title(f"{result.scenario.name}: allocation error")
-    fig.tight_layout()
-    _save(fig, path)
-    return True
 
 
 def write_placeholder_report(name: str, out: Path) -> Path:
@@ -190,20 +98,13 @@ def _stop_line(result: RunResult) -> str:
     return ""
 
 
-def write_report(result: RunResult, checks: list[CheckResult], summary: dict[str, Any], out: Path) -> Path:
+def write_report(result: RunResult, checks: list[CheckResult], summary: dict[str, Any], out: Path,
+                 plotter: plots.Plotter | None = None) -> Path:
+    """The figures (by ``plotter``'s worker, started when the run started, else here), then
+    report.md naming them: written last, when every figure is complete."""
     sc = result.scenario
-    figures: list[tuple[str, str]] = []
-    failed: list[str] = []
-    for fn, name, title in ((plot_trajectory, "trajectory.png", "Trajectory"),
-                            (plot_states, "states.png", "States vs references"),
-                            (plot_thrusters, "thrusters.png", "Thruster use"),
-                            (plot_allocation, "allocation.png", "Allocation error")):
-        try:
-            if fn(result, out / name):
-                figures.append((title, name))
-        except Exception as exc:  # a figure that cannot be drawn must not cost the report
-            plt.close("all")
-            failed.append(f"{name}: {type(exc).__name__}: {' '.join(str(exc).split())[:200]}")
+    data = series(result)
+    figures, failed = plotter.draw(data, out) if plotter is not None else plots.draw_all(data, out)
     stopped = _stop_line(result)
     lines = [
         f"# {sc.name}",

@@ -1,0 +1,321 @@
+"""The figures of a run's report (PNG): trajectory, states vs references, thruster use, allocation.
+
+Drawing them costs about a second, half of it importing matplotlib. ``Plotter`` starts a worker
+process (``python -m seafmu.plots``) when the run starts: it imports matplotlib and loads its
+fonts while the FMUs load and simulate, then draws the figures from the recorded signals it is
+sent. ``Plotter.draw`` returns only when every figure is written (or has failed), so the report
+written after it never names a figure that is not there; if the worker cannot start or dies, the
+figures are drawn in this process instead, with the same code.
+
+This module imports only the standard library, NumPy and (when drawing) matplotlib, so the worker
+starts without seafmu's scenario or simulation code. Lines of more samples than four per pixel
+column are reduced to each column's first, lowest, highest and last sample (M4 aggregation:
+the drawn line is the same, pixel for pixel).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import pickle
+import signal
+import subprocess
+import sys
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+DPI = 110
+ANGLES = {"roll", "pitch", "yaw"}
+ETA = ("north", "east", "down", "roll", "pitch", "yaw")
+REPLY_TIMEOUT_S = 600.0  # a worker that has not answered by then is stopped; this process draws
+
+
+@dataclass
+class Series:
+    """What the figures read: the scenario's name (titles), the time and the recorded signals."""
+
+    name: str
+    time: np.ndarray
+    signals: dict[str, np.ndarray]
+
+    def find(self, var: str) -> str | None:
+        """The first recorded 'instance.var' with this variable name."""
+        return next((k for k in self.signals if k.split(".", 1)[1] == var), None)
+
+
+@contextlib.contextmanager
+def _atomic_path(path: Path) -> Iterator[Path]:
+    """A temporary name beside ``path``, renamed over it when the block ends without error (the
+    same rule as ``seafmu.outdir.atomic_path``, here without importing seafmu)."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            tmp.unlink()
+
+
+def _figure(width: float, height: float) -> Any:
+    """A figure on the Agg canvas, outside pyplot: no global figure list, nothing to close."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(width, height))
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _save(fig: Any, path: Path) -> None:
+    fig.tight_layout()
+    with _atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=DPI, format="png")
+
+
+def m4(t: np.ndarray, y: np.ndarray, columns: int) -> tuple[np.ndarray, np.ndarray]:
+    """The samples a line of ``columns`` pixel columns needs: per column (equal spans of t), the
+    first, lowest, highest and last sample, in time order. Unchanged when that is not fewer.
+    Non-finite samples are kept (they break the line where they are)."""
+    n = len(t)
+    if columns < 1 or n <= 4 * columns or n < 2 or not (np.isfinite(t[0]) and np.isfinite(t[-1])):
+        return t, y
+    col = np.minimum(((t - t[0]) / max(t[-1] - t[0], 1e-300) * columns).astype(np.int64), columns - 1)
+    starts = np.flatnonzero(np.r_[True, col[1:] != col[:-1]])
+    ends = np.r_[starts[1:], n]
+    keep = np.zeros(n, dtype=bool)
+    keep[starts] = True
+    keep[ends - 1] = True
+    finite = np.isfinite(y)
+    keep[~finite] = True
+    big = np.where(finite, y, -np.inf)
+    small = np.where(finite, y, np.inf)
+    seg = np.repeat(np.arange(len(starts)), ends - starts)
+    order_hi = np.lexsort((-big, seg))  # per column, the highest first
+    order_lo = np.lexsort((small, seg))  # per column, the lowest first
+    keep[order_hi[starts]] = True
+    keep[order_lo[starts]] = True
+    return t[keep], y[keep]
+
+
+def _columns(fig: Any) -> int:
+    """Pixel columns at least as many as any axes of the figure has (the figure's width): each
+    M4 column then spans at most one pixel column, wherever the layout puts the axes."""
+    return max(int(np.ceil(fig.get_figwidth() * DPI)), 1)
+
+
+def trajectory(s: Series, path: Path) -> bool:
+    n, e = s.find("north"), s.find("east")
+    if n is None or e is None:
+        return False
+    fig = _figure(6, 6)
+    ax = fig.subplots()
+    ax.plot(s.signals[e], s.signals[n], label="true", lw=1.5)
+    nh, eh = s.find("north_hat"), s.find("east_hat")
+    if nh and eh:
+        ax.plot(s.signals[eh], s.signals[nh], "--", label="estimated", lw=1)
+    nr, er = s.find("north_ref"), s.find("east_ref")
+    if nr and er:
+        ax.plot(s.signals[er], s.signals[nr], "k+", ms=10, label="setpoints")
+    ax.plot(s.signals[e][0], s.signals[n][0], "go", label="start")
+    ax.set_xlabel("east [m]")
+    ax.set_ylabel("north [m]")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.grid(True, alpha=0.3)
+    ax.legend()
+    ax.set_title(f"{s.name}: trajectory (NED)")
+    _save(fig, path)
+    return True
+
+
+def states(s: Series, path: Path) -> bool:
+    eta = [n for n in ETA if s.find(n)]
+    if not eta:
+        return False
+    fig = _figure(9, 1.9 * len(eta) + 0.6)
+    axes = fig.subplots(len(eta), 1, sharex=True, squeeze=False)
+    cols = _columns(fig)
+    for ax, n in zip(axes[:, 0], eta, strict=True):
+        scale, unit = (180 / np.pi, "deg") if n in ANGLES else (1.0, "m")
+        for suffix, style, label in (("", "-", "true"), ("_hat", "--", "estimate"), ("_d", ":", "desired"),
+                                     ("_ref", "-", "reference")):
+            key = s.find(n + suffix)
+            if key is None:
+                continue
+            kw: dict[str, Any] = {"lw": 0.8} if suffix == "_ref" else {"lw": 1.2}
+            if suffix == "_ref":
+                kw["color"] = "k"
+                kw["alpha"] = 0.5
+            ax.plot(*m4(s.time, s.signals[key] * scale, cols), style, label=label, **kw)
+        ax.set_ylabel(f"{n} [{unit}]")
+        ax.grid(True, alpha=0.3)
+    axes[0, 0].legend(loc="best", fontsize=8, ncol=4)
+    axes[-1, 0].set_xlabel("time [s]")
+    fig.suptitle(f"{s.name}: states vs references")
+    _save(fig, path)
+    return True
+
+
+def _numbered(s: Series, prefix: str) -> list[str]:
+    """The signals named ``<prefix><number>``, by number."""
+    keys = [k for k in s.signals if k.split(".", 1)[1].startswith(prefix)
+            and k.split(".", 1)[1][len(prefix):].isdigit()]
+    return sorted(keys, key=lambda k: int(k.rsplit("_", 1)[1]))
+
+
+def thrusters(s: Series, path: Path) -> bool:
+    speeds, thrusts = _numbered(s, "n_"), _numbered(s, "thrust_")
+    if not speeds and not thrusts:
+        return False
+    fig = _figure(9, 6)
+    axes = fig.subplots(2, 1, sharex=True)
+    cols = _columns(fig)
+    for ax, keys in ((axes[0], speeds), (axes[1], thrusts)):
+        for k in keys:
+            ax.plot(*m4(s.time, s.signals[k], cols), lw=1, label=k.split(".", 1)[1])
+    axes[0].set_ylabel("shaft speed [rev/s]")
+    axes[1].set_ylabel("thrust [N]")
+    axes[1].set_xlabel("time [s]")
+    for ax in axes:
+        ax.grid(True, alpha=0.3)
+        if ax.get_legend_handles_labels()[0]:  # a hardware link reports no thrust: no empty legend
+            ax.legend(fontsize=7, ncol=4, loc="best")
+    fig.suptitle(f"{s.name}: thruster use")
+    _save(fig, path)
+    return True
+
+
+def allocation(s: Series, path: Path) -> bool:
+    keys = sorted(k for k in s.signals if k.endswith(".alloc_error"))
+    if not keys:
+        return False
+    fig = _figure(9, 4)
+    ax = fig.subplots()
+    cols = _columns(fig)
+    for k in keys:
+        ax.plot(*m4(s.time, s.signals[k], cols), lw=1.2, label=k.split(".", 1)[0])
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("allocation error ‖Bu − τ‖")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title(f"{s.name}: allocation error")
+    _save(fig, path)
+    return True
+
+
+# (file, title in the report, function): the report's figures, in its order
+FIGURES: tuple[tuple[str, str, Callable[[Series, Path], bool]], ...] = (
+    ("trajectory.png", "Trajectory", trajectory),
+    ("states.png", "States vs references", states),
+    ("thrusters.png", "Thruster use", thrusters),
+    ("allocation.png", "Allocation error", allocation),
+)
+
+
+def draw_all(s: Series, out: Path) -> tuple[list[tuple[str, str]], list[str]]:
+    """Every figure that applies, in ``out``: ((title, file) drawn, 'file: why' of each failed)."""
+    drawn: list[tuple[str, str]] = []
+    failed: list[str] = []
+    for name, title, fn in FIGURES:
+        try:
+            if fn(s, out / name):
+                drawn.append((title, name))
+        except Exception as exc:  # a figure that cannot be drawn must not cost the report
+            failed.append(f"{name}: {type(exc).__name__}: {' '.join(str(exc).split())[:200]}")
+    return drawn, failed
+
+
+class Plotter:
+    """``with Plotter() as p: ... p.draw(series, out)`` — the figures drawn by a worker process
+    started on entry (so matplotlib is imported while the run goes), else in this process."""
+
+    def __init__(self) -> None:
+        self._proc: subprocess.Popen[bytes] | None = None
+
+    def __enter__(self) -> Plotter:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def start(self) -> None:
+        """Start the worker; without one (no interpreter path, no process), ``draw`` draws here."""
+        if not sys.executable:
+            return
+        # Started beside this seafmu (the folder holding the package): the worker runs the same
+        # code whatever the current folder; its own session, so a terminal's Ctrl-C stops the run
+        # (which still wants its figures), not the worker.
+        root = Path(__file__).resolve().parents[1]
+        try:
+            self._proc = subprocess.Popen([sys.executable, "-m", "seafmu.plots"], cwd=root,
+                                          stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                          start_new_session=True)
+        except OSError:
+            self._proc = None
+
+    def draw(self, s: Series, out: Path) -> tuple[list[tuple[str, str]], list[str]]:
+        """Draw every figure into ``out``; returns when they are written (see ``draw_all``)."""
+        proc, self._proc = self._proc, None
+        if proc is not None:
+            # plain data (no seafmu class): the worker's module is __main__, not seafmu.plots
+            request = pickle.dumps({"name": s.name, "time": s.time, "signals": s.signals,
+                                    "out": str(Path(out).resolve())}, protocol=pickle.HIGHEST_PROTOCOL)
+            try:
+                reply, _ = proc.communicate(request, timeout=REPLY_TIMEOUT_S)
+                answer = json.loads(reply.decode("utf-8").strip().splitlines()[-1])
+                return [tuple(d) for d in answer["drawn"]], list(answer["failed"])  # type: ignore[misc]
+            except (OSError, ValueError, IndexError, KeyError, TypeError, subprocess.TimeoutExpired):
+                _stop(proc)  # the worker failed: the figures are drawn here
+        return draw_all(s, out)
+
+    def close(self) -> None:
+        """Stop a worker that was not used (the run failed before its figures)."""
+        proc, self._proc = self._proc, None
+        if proc is not None:
+            _stop(proc)
+
+
+def _stop(proc: subprocess.Popen[bytes]) -> None:
+    if proc.poll() is None:
+        proc.kill()
+    with contextlib.suppress(OSError, ValueError):
+        proc.communicate(timeout=10)
+
+
+def _warm_up() -> None:
+    """Import matplotlib and load the fonts of the figures (what the first figure would pay)."""
+    import io
+
+    fig = _figure(1, 1)
+    ax = fig.subplots()
+    ax.plot([0, 1], [0, 1], label="x")
+    ax.legend(fontsize=7)
+    ax.set_title("x")
+    fig.savefig(io.BytesIO(), dpi=DPI, format="png")
+
+
+def serve() -> int:
+    """The worker: warm up, read one pickled request from stdin, draw, answer one JSON line.
+    Ends at once when stdin closes first (the run ended without figures, or was killed)."""
+    for sig in (signal.SIGINT, signal.SIGHUP):
+        signal.signal(sig, signal.SIG_IGN)
+    with contextlib.suppress(Exception):  # a failure here fails the figures below, one by one
+        _warm_up()
+    try:
+        request = pickle.load(sys.stdin.buffer)  # from the parent run, over its private pipe
+    except EOFError:
+        return 0
+    series = Series(request["name"], request["time"], request["signals"])
+    drawn, failed = draw_all(series, Path(request["out"]))
+    sys.stdout.write(json.dumps({"drawn": drawn, "failed": failed}) + "\n")
+    sys.stdout.flush()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(serve())
