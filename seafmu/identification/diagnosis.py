@@ -22,6 +22,8 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from itertools import zip_longest
 from typing import Any
@@ -33,6 +35,7 @@ from seafmu.identification import catalogue, static, timeseries
 from seafmu.identification import effects as effect_objects
 from seafmu.identification.ambiguity import akaike_weights, discriminating_experiment, noise_level
 from seafmu.identification.catalogue import CATALOGUE, effect_params, null_value
+from seafmu.identification.effects.base import Combined
 from seafmu.identification.fitting import FitResult
 
 # synthetic trials live in ``synthetic``; importable from here for existing callers (benchmarks)
@@ -67,6 +70,9 @@ class Candidate:
     seconds: float = 0.0
     effects: tuple[str, ...] = ()  # the catalogue effects it adds (one for a single effect)
     flags: list[str] = field(default_factory=list)  # claims of the model the data contradict
+    # the fit parameters of each effect in ``effects`` (same order); empty: the effect's own names
+    # found in the fit. Given where one effect appears twice (two thrusters lost, each located).
+    groups: tuple[tuple[str, ...], ...] = ()
 
     def __post_init__(self) -> None:
         if not self.effects:
@@ -76,11 +82,22 @@ class Candidate:
     def size(self) -> int:
         return len(self.effects)
 
+    def member_groups(self) -> tuple[tuple[str, ...], ...]:
+        """The fit parameters of each of its effects."""
+        if self.groups:
+            return self.groups
+        names = self.fit.param_names if self.fit is not None else []
+        return tuple(tuple(effect_params(e, names)) for e in self.effects)
+
+    def members(self) -> list[tuple[str, tuple[str, ...]]]:
+        """Each effect with its parameters (sorted): what a combination's sub-models are matched by."""
+        return [(e, tuple(sorted(g))) for e, g in zip(self.effects, self.member_groups(), strict=True)]
+
     def effect_params(self) -> dict[str, float]:
         f = self.fit
         if f is None:
             return {}
-        return {k: float(f.params[k]) for e in self.effects for k in effect_params(e, f.param_names)}
+        return {k: float(f.params[k]) for g in self.member_groups() for k in g if k in f.params}
 
     def row(self) -> dict[str, Any]:
         f = self.fit
@@ -148,6 +165,15 @@ class Diagnosis:
             return []
         return contribution_order(self.cause, self.candidates)
 
+    def members(self) -> list[dict[str, Any]]:
+        """Each effect of the cause with its fitted parameters, largest contribution first (two
+        located thrusters are two members of one effect)."""
+        if not self.cause or self.cause.fit is None:
+            return []
+        f, groups = self.cause.fit, self.cause.member_groups()
+        return [{"effect": self.cause.effects[i], "params": {k: float(f.params[k]) for k in groups[i]}}
+                for i in _member_order(self.cause, self.candidates)]
+
     def ranking(self) -> list[Candidate]:
         ok = [c for c in self.candidates if c.fit is not None]
         return sorted(ok, key=lambda c: (c.fit.nrmse_validation if math.isfinite(c.fit.nrmse_validation)
@@ -167,7 +193,8 @@ class Diagnosis:
             "trial": {"name": self.trial.name, "kind": self.trial.kind, "dof": self.trial.dof,
                       "baseline_model": self.trial.baseline, "provenance": self.trial.provenance},
             "baseline": summary(b),
-            "cause": {"effect": self.effect, "effects": self.effects, "evidence": self.evidence,
+            "cause": {"effect": self.effect, "effects": self.effects, "members": self.members(),
+                      "evidence": self.evidence,
                       "tested": self.tested, "alternatives": alts,
                       "discriminating_experiment": next((a["discriminating_experiment"] for a in alts[1:]
                                                          if a["discriminating_experiment"]), None),
@@ -218,18 +245,53 @@ def fit_extension(trial: Trial, base: FitResult, effect: str | tuple[str, ...],
     return timeseries.fit_effects(trial, base, names, seeds=seeds)
 
 
-def fit_maneuver(trial: Trial, method: str, effect: str | None = None,
+def fit_maneuver(trial: Trial, method: str, effect: str | Any | None = None,
                  start: dict[str, float] | None = None) -> FitResult:
-    """Multi-DOF maneuver log: delegated to the maneuver module (Minerva 2 LS or output error)."""
+    """Multi-DOF maneuver log: delegated to the maneuver module (Minerva 2 LS or output error).
+    ``effect``: a maneuver effect's name, or an effect object (a located variant, a combination).
+    Inside ``identify``/``diagnose`` the log is read and prepared (LS start, simulation setups)
+    once for all fits (``_prepared_logs``)."""
+    from seafmu.identification.maneuver.fit import fit_prepared
+
+    return fit_prepared(maneuver_problem(trial), method, effect=effect, oe_start=start)
+
+
+def maneuver_problem(trial: Trial) -> Any:
+    """The trial's log read and prepared for fitting (``maneuver.fit.ManeuverProblem``); made once
+    per ``identify``/``diagnose`` (their scope keeps it), else every call."""
     from seafmu.components.vessel_spec import load_vessel
-    from seafmu.identification.maneuver import identify_maneuver
+    from seafmu.identification.maneuver.fit import prepare_maneuver
 
     if not trial.vessel:
         raise TrialError(f"{trial.name}: a maneuver trial needs a vessel (trial 'vessel' or --vessel)")
+    scope = _PREPARED.get(id(trial))
+    if scope is not None and scope[0] is trial and scope[1] is not None:
+        return scope[1]
     vessel = load_vessel(trial.vessel)
-    data = maneuver_data(trial, vessel)
-    return identify_maneuver(data, vessel, method=method, validation_fraction=trial.validation_fraction,
-                             effect=effect, oe_start=start)
+    problem = prepare_maneuver(maneuver_data(trial, vessel), vessel, trial.validation_fraction)
+    if scope is not None and scope[0] is trial:
+        _PREPARED[id(trial)] = (trial, problem)
+    return problem
+
+
+# Trials inside an identify/diagnose call -> (the trial, its prepared log once made): the log is
+# read, resampled, differentiated and fitted by LS once, not once per candidate fit (4 fits and
+# more per diagnosis: ~0.5 s each time on a 10 000-sample log).
+_PREPARED: dict[int, tuple[Trial, Any]] = {}
+
+
+@contextmanager
+def _prepared_logs(trial: Trial) -> Iterator[None]:
+    """Within the block, every maneuver fit of ``trial`` shares one prepared log."""
+    key = id(trial)
+    mine = key not in _PREPARED
+    if mine:
+        _PREPARED[key] = (trial, None)
+    try:
+        yield
+    finally:
+        if mine:
+            _PREPARED.pop(key, None)
 
 
 def maneuver_data(trial: Trial, vessel: Any) -> Any:
@@ -262,7 +324,7 @@ class Identification:
 def identify(trial: Trial) -> Identification:
     """Fit the trial's baseline model (and, for the pendulum, the equation-error variants); BLAS
     single-threaded (see ``diagnose``)."""
-    with threadpool_limits(limits=1, user_api="blas"):
+    with threadpool_limits(limits=1, user_api="blas"), _prepared_logs(trial):
         return _identify(trial)
 
 
@@ -308,7 +370,7 @@ def diagnose(trial: Trial, effects: list[str] | None = None, rule: Rule | None =
     BLAS runs single-threaded meanwhile: the fits factor tall, thin Jacobians (10 000 x 10), which
     a threaded BLAS does 5-50 times slower on a busy 2-core machine than one thread does.
     """
-    with threadpool_limits(limits=1, user_api="blas"):
+    with threadpool_limits(limits=1, user_api="blas"), _prepared_logs(trial):
         return _diagnose(trial, effects, rule or Rule(), combinations)
 
 
@@ -344,25 +406,35 @@ def _diagnose(trial: Trial, effects: list[str] | None, rule: Rule, combinations:
 
 
 def judge(name: str, base: FitResult, fit: FitResult, trial: Trial, rule: Rule,
-          seconds: float = 0.0) -> Candidate:
+          seconds: float = 0.0, groups: tuple[tuple[str, ...], ...] = ()) -> Candidate:
     """Apply the acceptance rule to one refitted extension (a combination: every effect in it must
-    have a significant parameter)."""
+    have a significant parameter). ``groups``: each effect's fit parameters, where one effect
+    appears more than once (two located thrusters); else the effect's own names in the fit."""
     names = tuple(name.split("+"))
     ratio, gain, dAIC = _compare(base, fit)
     sig_each = []
     at_bound = []
+    small = []
     bounds = catalogue.fit_bounds(trial)
-    for e in names:
+    for i, e in enumerate(names):
         sig = False
-        for p in effect_params(e, fit.param_names):
+        own = list(groups[i]) if groups else effect_params(e, fit.param_names)
+        floor = float(getattr(effect_objects.get(e), "min_effect", 0.0))
+        below = bool(own) and floor > 0
+        for p in own:
+            null = null_value(p, trial)
             if p in fit.ci95:
                 lo, hi = fit.ci95[p]
-                null = null_value(p, trial)
                 if math.isfinite(lo) and math.isfinite(hi) and not (lo <= null <= hi):
                     sig = True
+            if p in fit.params and abs(fit.params[p] - null) >= floor:
+                below = False
             b = bounds.get(p)
             if b is not None and p in fit.params and _at_bound(fit.params[p], b):
                 at_bound.append(p)
+        if below:  # closer to "absent" than the effect's model is known to (a thrust law's accuracy)
+            sig = False
+            small.append(f"{', '.join(own)} within {floor:g} of {null_value(own[0], trial):g}")
         sig_each.append(sig)
     n_val = int(fit.extras.get("n_validation", 0))
     reasons = _rule_reasons(ratio, gain, dAIC, n_val, rule)
@@ -370,11 +442,13 @@ def judge(name: str, base: FitResult, fit: FitResult, trial: Trial, rule: Rule,
         which = [e for e, ok in zip(names, sig_each, strict=True) if not ok]
         reasons.append("parameter not significant (CI includes the no-effect value)" if len(names) == 1
                        else f"{', '.join(which)}: parameter not significant")
+    if small:
+        reasons.append(f"{'; '.join(small)}, the accuracy its model is known to")
     if at_bound:
         reasons.append(f"{', '.join(at_bound)} at the bound of its range: the data push the effect beyond "
                        "what it can mean")
     return Candidate(name, fit, ratio, dAIC, all(sig_each), not reasons, "; ".join(reasons) or "accepted",
-                     seconds, names)
+                     seconds, names, groups=groups)
 
 
 def _at_bound(x: float, b: tuple[float, float]) -> bool:
@@ -434,8 +508,10 @@ def search_combinations(trial: Trial, base: FitResult, singles: list[Candidate],
     effects is screened by the cost of its best start (the single fits' values reused, and each
     effect's start grid: simulations, no fit; ``screen``), and the most promising are fitted.
     """
-    if trial.kind == "maneuver" or trial.dof == "sway_yaw":
-        return []  # the maneuver fit takes one extension; a sway_yaw trial tests the coupling only
+    if trial.kind == "maneuver":
+        return _maneuver_combinations(trial, base, singles, rule)
+    if trial.dof == "sway_yaw":
+        return []  # a sway_yaw trial tests the coupling only
     pool = [c for c in singles if c.fit is not None and math.isfinite(c.fit.nrmse_validation)]
     by_name = {c.effect: c for c in pool}
     pairs = [(a, b) for i, a in enumerate(pool) for b in pool[i + 1:] if _compatible(a.effects + b.effects)]
@@ -461,6 +537,179 @@ def search_combinations(trial: Trial, base: FitResult, singles: list[Candidate],
             if triple.accepted:
                 out += _against_sub_pairs(trial, base, triple, by_name, out, rule, noise)
     return out
+
+
+# Maneuver logs: pairs fitted at most (best screened first); a screened pair must beat the screened
+# model of each of its parts (stepped from the same reference) by this held-out NRMSE ratio and
+# AIC margin before it is fitted (a screen is one Gauss-Newton step: it finds, the fit judges).
+MANEUVER_PAIRS = 2
+SCREEN_RATIO = 1.01
+SCREEN_DAIC = -10.0
+MANEUVER_REFERENCES = 2  # single-effect fits the pairs are screened from (lowest AIC first)
+# Evaluations of a part's own fit (started from the pair's values): a part alone is the worse model
+# wherever the pair is right, and its cost falls most in the first few steps.
+PART_NFEV = 10
+
+
+def _maneuver_members(trial: Trial, singles: list[Candidate]) -> tuple[list[Any], dict[int, Candidate]]:
+    """The maneuver extensions a pair is made of, as effect objects: each applicable effect, or each
+    of its located variants (one per thruster) where it has them; and the single-effect candidate
+    fitted with each (a located effect: only the variant its fit located)."""
+    problem = maneuver_problem(trial)
+    d = problem.vessel.dof
+    m = problem.prep.thrust.shape[1] if problem.prep.thrust is not None else 0
+    members: list[Any] = []
+    single_of: dict[int, Candidate] = {}
+    for c in singles:
+        obj = effect_objects.get(c.effect)
+        if obj is None or not obj.maneuver or c.size != 1:
+            continue
+        variants = getattr(obj, "maneuver_variants", None)
+        for v in (variants(m) if variants is not None else [obj]) if (variants is None or m) else []:
+            members.append(v)
+            if c.fit is not None and set(v.maneuver_params(d)) <= set(c.fit.param_names):
+                single_of[len(members) - 1] = c
+    return members, single_of
+
+
+def _pairable(a: Any, b: Any, d: int) -> bool:
+    """Two maneuver extensions that can act at once: two effects fitted together (``excludes``), or
+    two variants of one effect that combine (two thrusters lost)."""
+    if a.name == b.name:
+        return bool(a.variants_combine) and a.maneuver_params(d) != b.maneuver_params(d)
+    return _compatible((a.name, b.name))
+
+
+def _maneuver_combinations(trial: Trial, base: FitResult, singles: list[Candidate],
+                           rule: Rule) -> list[Candidate]:
+    """Pairs of maneuver extensions (two effects, or two located thrusters), screened cheaply and
+    the promising ones fitted, warm started, and judged like any combination.
+
+    Screen (``maneuver.fit.screen_extensions``): from the single-effect fits of lowest AIC (at most
+    ``MANEUVER_REFERENCES``, each beating the baseline's AIC; else the baseline: a pair may explain
+    what each part alone cannot), one Gauss-Newton step in the damping and the pair's parameters,
+    simulated on the fitted and the held-out part. A pair is fitted only where its step beats the
+    step of each of its parts from the same reference by ``SCREEN_RATIO`` held out and
+    ``SCREEN_DAIC``; the best ``MANEUVER_PAIRS`` of those, started from the step (and from the
+    accepted single fits' values). Then the rule against the baseline and against each part alone
+    (fitted now from the pair's values where the single search did not fit it: a thruster it did
+    not locate).
+    """
+    from seafmu.identification.maneuver.fit import screen_extensions
+
+    problem = maneuver_problem(trial)
+    d = problem.vessel.dof
+    members, single_of = _maneuver_members(trial, singles)
+    # references: the single fits that explain most (AIC), accepted or not: a part of a pair fitted
+    # alone may be held back by the other part's absence (held out worse), yet its fit is near the
+    # pair's
+    ranked = sorted((c for c in singles if c.fit is not None and c.delta_aic <= rule.max_delta_aic),
+                    key=lambda c: c.fit.aic)  # type: ignore[union-attr]
+    refs: list[tuple[dict[str, float], list[int]]] = []  # (reference values, the members it has)
+    for c in ranked[:MANEUVER_REFERENCES]:
+        refs.append((dict(c.fit.params), [i for i, s in single_of.items() if s is c]))  # type: ignore[union-attr]
+    if not refs:
+        refs.append((dict(base.params), []))
+    promising: dict[frozenset[int], Any] = {}
+    for values, have in refs:
+        pairs = [(i, j) for i in range(len(members)) for j in range(i + 1, len(members))
+                 if _pairable(members[i], members[j], d) and (not have or i in have or j in have)]
+        if not pairs:
+            continue
+        subs = [(i,) for i in have] if have else [(), *((i,) for i in range(len(members)))]
+        try:
+            screened = screen_extensions(problem, values, members, subs + pairs)
+        except (ValueError, np.linalg.LinAlgError, FloatingPointError):
+            continue
+        if screened is None:
+            continue
+        by = {sc.members: sc for sc in screened}
+        for i, j in pairs:
+            pair = by[(i, j)]
+            parts = [by[(k,)] for k in (i, j) if (k,) in by] or [by[()]]
+            if all(_screen_passes(pair, sub, d, members) for sub in parts):
+                old = promising.get(frozenset((i, j)))
+                if old is None or pair.nrmse_validation < old.nrmse_validation:
+                    promising[frozenset((i, j))] = pair
+    out: list[Candidate] = []
+    noise = min((noise_level(c.fit) for c in singles if c.fit is not None), default=noise_level(base))
+    best_screen = math.inf  # the screened held-out NRMSE of the first accepted pair
+    for pair in sorted(promising.values(), key=lambda sc: sc.nrmse_validation)[:MANEUVER_PAIRS]:
+        if pair.nrmse_validation > SCREEN_RATIO * best_screen:
+            break  # clearly worse than a pair already accepted: not a rival explanation
+        objs = tuple(members[k] for k in pair.members)
+        start = dict(pair.start)
+        for k in pair.members:  # an accepted single fit's values of its own member: a better start
+            c = single_of.get(k)
+            if c is not None and c.accepted and c.fit is not None:
+                start.update({q: c.fit.params[q] for q in members[k].maneuver_params(d)})
+        cand = _fit_members(trial, base, objs, start, rule, noise)
+        out.append(cand)
+        if cand.accepted:
+            out += _against_parts(trial, base, cand, objs, singles + out, rule, noise)
+        if cand.accepted:
+            best_screen = min(best_screen, pair.nrmse_validation)
+    return out
+
+
+def _screen_passes(pair: Any, sub: Any, d: int, members: list[Any]) -> bool:
+    """A screened pair beats a screened sub-model by the screen's margins (held out, AIC)."""
+    if not (math.isfinite(pair.nrmse_validation) and math.isfinite(pair.cost) and pair.cost > 0):
+        return False
+    if not sub.nrmse_validation >= SCREEN_RATIO * pair.nrmse_validation:
+        return False
+    extra = sum(len(members[k].maneuver_params(d)) for k in pair.members if k not in sub.members)
+    dAIC = pair.rows * math.log(pair.cost / sub.cost) + 2.0 * extra if sub.cost > 0 else math.inf
+    return dAIC <= SCREEN_DAIC
+
+
+def _fit_members(trial: Trial, base: FitResult, objs: tuple[Any, ...], start: dict[str, float], rule: Rule,
+                 noise: float, max_nfev: int = 40) -> Candidate:
+    """Fit the maneuver extensions ``objs`` together (one: itself) from ``start`` and judge it."""
+    from seafmu.identification.maneuver.fit import fit_prepared
+
+    d = maneuver_problem(trial).vessel.dof
+    name = "+".join(o.name for o in objs)
+    groups = tuple(tuple(o.maneuver_params(d)) for o in objs)
+    t1 = time.perf_counter()
+    try:
+        fit = fit_prepared(maneuver_problem(trial), "output_error", max_nfev=max_nfev, oe_start=start,
+                           effect=objs[0] if len(objs) == 1 else Combined(objs, d))
+    except (TrialError, ValueError, np.linalg.LinAlgError, FloatingPointError) as exc:
+        return Candidate(name, None, reason=f"fit failed: {exc}", seconds=time.perf_counter() - t1,
+                         effects=tuple(o.name for o in objs), groups=groups)
+    cand = judge(name, base, fit, trial, rule, time.perf_counter() - t1, groups)
+    check_claims(cand, trial, noise)
+    return cand
+
+
+def _against_parts(trial: Trial, base: FitResult, cand: Candidate, objs: tuple[Any, ...],
+                   fitted: list[Candidate], rule: Rule, noise: float) -> list[Candidate]:
+    """A maneuver pair earns its parameters only over each of its parts alone: a part the single
+    search did not fit (a thruster it did not locate) is fitted now, from the pair's values without
+    the other part's. Returns the parts fitted here."""
+    assert cand.fit is not None
+    have = {frozenset(c.members()): c for c in fitted if c.fit is not None}
+    groups = cand.member_groups()
+    new: list[Candidate] = []
+    n_val = int(cand.fit.extras.get("n_validation", 0))
+    for i, obj in enumerate(objs):
+        key = frozenset([(obj.name, tuple(sorted(groups[i])))])
+        sub = have.get(key)
+        if sub is None:
+            drop = {q for j, g in enumerate(groups) if j != i for q in g}
+            start = {k: v for k, v in cand.fit.params.items() if k not in drop}
+            sub = _fit_members(trial, base, (obj,), start, rule, noise, PART_NFEV)
+            new.append(sub)
+        if sub.fit is None:
+            continue
+        ratio, gain, dAIC = _compare(sub.fit, cand.fit)
+        label = f"{obj.name} ({', '.join(groups[i])})" if len(groups[i]) == 1 else obj.name
+        earned = _rule_reasons(ratio, gain, dAIC, n_val, rule, against=label)
+        if earned and cand.accepted:
+            cand.accepted = False
+            cand.reason = "does not earn its parameters: " + "; ".join(earned)
+    return new
 
 
 def _against_sub_pairs(trial: Trial, base: FitResult, triple: Candidate, singles: dict[str, Candidate],
@@ -587,18 +836,24 @@ def _fit_combination(trial: Trial, base: FitResult, parts: tuple[Candidate, ...]
 def contribution_order(cause: Candidate, cands: list[Candidate]) -> list[str]:
     """The cause's effects, largest contribution first: how much worse (AIC) the fit gets without
     each one (its sub-model fitted in the search; a single effect's own dAIC where that is all)."""
-    if cause.size == 1 or cause.fit is None:
-        return list(cause.effects)
-    fitted = {frozenset(c.effects): c for c in cands if c.fit is not None}
+    return [cause.effects[i] for i in _member_order(cause, cands)]
 
-    def loss(e: str) -> float:
-        rest = fitted.get(frozenset(cause.effects) - {e})
+
+def _member_order(cause: Candidate, cands: list[Candidate]) -> list[int]:
+    """Indices of the cause's effects, largest contribution first (``contribution_order``)."""
+    if cause.size == 1 or cause.fit is None:
+        return list(range(cause.size))
+    fitted = {frozenset(c.members()): c for c in cands if c.fit is not None}
+    mine = cause.members()
+
+    def loss(i: int) -> float:
+        rest = fitted.get(frozenset(mine[:i] + mine[i + 1:]))
         if rest is not None:
             return rest.fit.aic - cause.fit.aic  # type: ignore[union-attr]
-        one = fitted.get(frozenset({e}))
+        one = fitted.get(frozenset([mine[i]]))
         return -one.delta_aic if one is not None else 0.0
 
-    return sorted(cause.effects, key=lambda e: -loss(e))
+    return sorted(range(cause.size), key=lambda i: -loss(i))
 
 
 def choose(cands: list[Candidate], rule: Rule | None = None) -> Candidate | None:
@@ -646,7 +901,7 @@ def alternatives(trial: Trial, cause: Candidate | None, cands: list[Candidate]) 
     if cause is None or cause.fit is None:
         return []
     others = [c for c in cands if c.accepted and c.fit is not None and c is not cause
-              and not set(c.effects) <= set(cause.effects)]
+              and not set(c.members()) <= set(cause.members())]
     credible = [cause, *sorted(others, key=lambda c: c.fit.aic)]  # type: ignore[union-attr]
     aics = [c.fit.aic for c in credible]  # type: ignore[union-attr]
     weights = akaike_weights(aics)
@@ -687,12 +942,18 @@ def explain(trial: Trial, base: FitResult, cands: list[Candidate], cause: Candid
         return text + "."
     assert cause.fit is not None
     words = _params_for_words(cause.fit)
-    order = contribution_order(cause, cands)
+    order = _member_order(cause, cands)
     if cause.size == 1:
         text = catalogue.evidence(cause.effect, words, trial, base.nrmse_validation,
                                   cause.fit.nrmse_validation, cause.delta_aic)
     else:
-        parts = [catalogue.finding(e, words, trial) for e in order]
+        groups = cause.member_groups()
+        parts = []
+        for i in order:  # each effect in its own words: the other effects' parameters left out
+            others = {q for j, g in enumerate(groups) if j != i for q in g} - set(groups[i])
+            own = {k: v for k, v in words.items()
+                   if k not in others and k.removesuffix("_halfwidth") not in others}
+            parts.append(catalogue.finding(cause.effects[i], own, trial))
         listed = "; ".join(f"({i + 1}) {p}" for i, p in enumerate(parts))
         text = (f"{len(order)} effects act together: {listed} (combined: held-out NRMSE "
                 f"{base.nrmse_validation:.3g} -> {cause.fit.nrmse_validation:.3g}, ratio {cause.ratio:.2f}, "

@@ -116,6 +116,12 @@ class CatalogueEffect(ABC):
     general: ClassVar[bool] = False
     # Effects modelling the same thing another way: never fitted together (e.g. two thrust laws).
     excludes: ClassVar[tuple[str, ...]] = ()
+    # Maneuver effects located by variants (``maneuver_variants``: which thruster): True when two
+    # of its variants can act at once (two thrusters lost), so the combination search pairs them.
+    variants_combine: ClassVar[bool] = False
+    # The smallest departure from ``absent`` the effect's model is known to (a thrust law's
+    # accuracy): a fitted value closer to absent is not reported, however narrow its interval.
+    min_effect: ClassVar[float] = 0.0
     # (parameter, width) of a regularised law a time-series fit sharpens by continuation.
     regularised: ClassVar[tuple[str, str] | None] = None
     # Synthetic trials: the demo kinds it is hidden in (first: default), the plant trial kind and
@@ -231,6 +237,55 @@ class CatalogueEffect(ABC):
 
     def maneuver_evidence(self, params: dict[str, float]) -> str:
         raise EffectNotSupported(f"effect '{self.name}' has no maneuver-level extension")
+
+
+class Combined(CatalogueEffect):
+    """Several maneuver effects (or located variants of one) fitted together: their parameters side
+    by side, their simulator terms merged (forces add, currents add, thrust gains multiply). Not
+    registered: the diagnosis's combination search builds it from the parts."""
+
+    maneuver = True
+
+    def __init__(self, parts: tuple[CatalogueEffect, ...] | list[CatalogueEffect], d: int) -> None:
+        if not parts or not all(p.maneuver for p in parts):
+            raise ValueError("a combination needs one or more maneuver effects")
+        self.parts = tuple(parts)
+        self.name = "+".join(p.name for p in self.parts)  # type: ignore[misc]
+        # one "absent" value for every parameter: only the fit's vessel-file start uses it (the
+        # combination search always gives each parameter a start of its own)
+        self.absent = self.parts[0].absent  # type: ignore[misc]
+        self._sizes = [len(p.maneuver_params(d)) for p in self.parts]
+        self._d = d
+
+    def applies(self, trial: Trial) -> str | None:
+        return None
+
+    def evidence(self, params: dict[str, float], trial: Trial) -> str:
+        return self.maneuver_evidence(params)
+
+    def maneuver_params(self, d: int) -> list[str]:
+        return [q for p in self.parts for q in p.maneuver_params(d)]
+
+    def maneuver_scales(self, tau: np.ndarray) -> list[float]:
+        return [x for p in self.parts for x in p.maneuver_scales(tau)]
+
+    def maneuver_terms(self, P: np.ndarray) -> dict[str, np.ndarray]:
+        out: dict[str, np.ndarray] = {}
+        k = 0
+        for p, n in zip(self.parts, self._sizes, strict=True):
+            for key, v in p.maneuver_terms(P[:, k : k + n]).items():
+                if key not in out:
+                    out[key] = np.array(v, dtype=float)
+                elif key == "thrust_gain":
+                    out[key] = out[key] * v
+                else:
+                    out[key] = out[key] + v
+            k += n
+        return out
+
+    def maneuver_evidence(self, params: dict[str, float]) -> str:
+        return "; ".join(p.maneuver_evidence({q: params[q] for q in p.maneuver_params(self._d)
+                                              if q in params}) for p in self.parts)
 
 
 def fmt(x: float) -> str:

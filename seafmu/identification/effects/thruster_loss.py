@@ -54,6 +54,7 @@ class ThrusterLoss(CatalogueEffect):
     # (a noise-free log makes every deviation "significant").
     min_effect: ClassVar[float] = 0.05
     maneuver = True
+    variants_combine: ClassVar[bool] = True  # two thrusters can be lost at once
     units: ClassVar[dict[str, tuple[str, bool]]] = {PARAM: ("ratio", False)}
 
     def __init__(self, thruster: int | None = None, n_thrusters: int = 0) -> None:

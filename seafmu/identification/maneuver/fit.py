@@ -4,6 +4,7 @@ smoothing), optionally output error, and reports a ``FitResult``.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -11,8 +12,9 @@ import numpy as np
 from seafmu.components.thrusters import thruster_matrix
 from seafmu.components.vessel_spec import NU_NAMES, TAU_NAMES, VesselSpec
 from seafmu.identification import fitting
+from seafmu.identification.effects import CatalogueEffect
 from seafmu.identification.fitting import FitResult
-from seafmu.identification.maneuver.estimation import _LSResult, _output_error, _run_ls
+from seafmu.identification.maneuver.estimation import _LSResult, _output_error, _output_error_one, _run_ls
 from seafmu.identification.maneuver.io import (
     SAMPLES_PER_REGRESSOR,
     ManeuverData,
@@ -60,7 +62,7 @@ def identify_maneuver(
     segment: float = 30.0,
     sim_dt: float = 0.05,
     max_nfev: int = 40,
-    effect: str | None = None,
+    effect: str | CatalogueEffect | None = None,
     oe_start: dict[str, float] | None = None,
 ) -> FitResult:
     """Identify M, D_L, D_Q from a maneuver log (see the module docstring for the methods).
@@ -74,12 +76,47 @@ def identify_maneuver(
     ``oe_base`` = "vessel" keeps every other entry from the vessel file, "ls" from the LS fit.
     ``segment`` s: restart length of the simulations, on a grid of about ``sim_dt`` s.
     ``effect`` (output error only): a diagnosis extension, "current" (NED current fitted, damping
-    on nu - nu_c) or "constant_force" (a force per DOF); ``oe_start``: start values by name.
+    on nu - nu_c) or "constant_force" (a force per DOF), or an effect object (a located variant,
+    a combination: ``effects.base.Combined``); ``oe_start``: start values by name.
+
+    The same as ``fit_prepared(prepare_maneuver(...), ...)``: a diagnosis prepares the log once
+    and fits it with each extension.
     """
-    # Over 80 lines: 16 keyword arguments and their documentation, and the FitResult built field by
-    # field, are half of it; the body is the sequence check -> prepare and LS (with the smoothing
-    # choice) -> final estimate -> simulation scores -> warnings, each step a helper below.
-    _check_log(data, vessel, method, validation_fraction, coriolis, damping, oe_base, effect)
+    _check_args(vessel, method, oe_base, effect)
+    problem = prepare_maneuver(data, vessel, validation_fraction, coriolis=coriolis, damping=damping,
+                               derivative=derivative, smoothing=smoothing, polyorder=polyorder,
+                               segment=segment, sim_dt=sim_dt)
+    return fit_prepared(problem, method, oe_added_mass=oe_added_mass, oe_base=oe_base, max_nfev=max_nfev,
+                        effect=effect, oe_start=oe_start)
+
+
+@dataclass
+class ManeuverProblem:
+    """A checked, prepared maneuver log: what every fit of it shares (resampling, nu_dot, the LS
+    start with its smoothing choice, the simulation setups of the fitted and held-out parts).
+    Fits never modify it."""
+
+    vessel: VesselSpec
+    data: ManeuverData
+    prep: _Prepared
+    rows: np.ndarray
+    ls: _LSResult
+    fit_setup: _SimSetup
+    val_setup: _SimSetup | None
+    plant: dict[str, np.ndarray]
+    derivative: str
+    validation_fraction: float
+    warnings: list[str]
+    extras: dict[str, Any]
+
+
+def prepare_maneuver(data: ManeuverData, vessel: VesselSpec, validation_fraction: float = 0.3, *,
+                     coriolis: str = "auto", damping: str = "full", derivative: str = "auto",
+                     smoothing: float | None = None, polyorder: int = 4, segment: float = 30.0,
+                     sim_dt: float = 0.05) -> ManeuverProblem:
+    """Check the log and the arguments, resample, prepare nu_dot, fit LS (choosing the
+    smoothing) and set up the simulations (``identify_maneuver`` for the arguments)."""
+    _check_log(data, vessel, validation_fraction, coriolis, damping)
     d = vessel.dof
     warnings: list[str] = []
     data = _uniform(data, warnings)
@@ -91,7 +128,6 @@ def identify_maneuver(
     i_split = n if validation_fraction == 0 else round(n * (1.0 - validation_fraction))
 
     plant = plant_matrices(vessel)
-    M_RB = plant["M_RB"]
     coriolis = _coriolis_form(vessel, coriolis, damping, warnings)
 
     smoothing, prep, rows, ls, fit_setup, ratio, scores = _ls_with_smoothing(
@@ -101,12 +137,6 @@ def identify_maneuver(
     tau_rank = int(np.sum(np.linalg.eigvalsh(tau_cov) > 1e-8))
     if tau_rank < d:
         warnings.append(f"the logged forces excite only {tau_rank} of {d} independent directions")
-    if prep.dt > 0.05 and derivative != "measured" and method == "ls":
-        warnings.append(f"coarse sampling ({prep.dt:g} s): differentiation bias grows as dt^2; "
-                        "prefer method='output_error' for final numbers")
-
-    nu_names = NU_NAMES[d]
-    nu_rms = np.sqrt(np.mean(prep.nu_raw[rows] ** 2, axis=0))
     val_setup = _sim_setup(vessel, prep, i_split, n, segment, sim_dt, scale=fit_setup.scale)
     extras: dict[str, Any] = {
         "preprocessing": prep.note,
@@ -124,21 +154,42 @@ def identify_maneuver(
         "fit_samples": [0, i_split],
         "validation_samples": [i_split, n],
     }
+    return ManeuverProblem(vessel, data, prep, rows, ls, fit_setup,
+                           val_setup if validation_fraction > 0 else None, plant, derivative,
+                           validation_fraction, warnings, extras)
+
+
+def fit_prepared(problem: ManeuverProblem, method: str = "ls", *, oe_added_mass: bool = False,
+                 oe_base: str = "vessel", max_nfev: int = 40, effect: str | CatalogueEffect | None = None,
+                 oe_start: dict[str, float] | None = None) -> FitResult:
+    """One fit of a prepared log: LS itself, or output error (with an extension ``effect``, a
+    name or an effect object) started from it; the simulation scores and the warnings."""
+    _check_args(problem.vessel, method, oe_base, effect)
+    vessel, prep, ls, fit_setup = problem.vessel, problem.prep, problem.ls, problem.fit_setup
+    d = vessel.dof
+    warnings = list(problem.warnings)
+    if prep.dt > 0.05 and problem.derivative != "measured" and method == "ls":
+        warnings.append(f"coarse sampling ({prep.dt:g} s): differentiation bias grows as dt^2; "
+                        "prefer method='output_error' for final numbers")
+    rows = problem.rows
+    nu_names = NU_NAMES[d]
+    nu_rms = np.sqrt(np.mean(prep.nu_raw[rows] ** 2, axis=0))
+    extras: dict[str, Any] = dict(problem.extras)
 
     M, D_L, D_Q, names, values, ci, corr, n_res, method_label = _estimate(
-        method, vessel, prep, fit_setup, ls, plant, oe_added_mass, oe_base, max_nfev, warnings, effect,
-        oe_start, extras)
+        method, vessel, prep, fit_setup, ls, problem.plant, oe_added_mass, oe_base, max_nfev, warnings,
+        effect, oe_start, extras)
     fitted = set(names)
 
     # simulation NRMSE (same for both methods)
     eff = extras.get("effect_terms") if method != "ls" else None
     nrmse_fit, nrmse_validation, res_ok = _simulation_scores(
-        fit_setup, val_setup if validation_fraction > 0 else None, M, D_L, D_Q, eff, extras, warnings)
+        fit_setup, problem.val_setup, M, D_L, D_Q, eff, extras, warnings)
     rss = float(np.sum(res_ok**2))
     aic, bic = fitting.aic_bic(rss, res_ok.size, len(names))
     whiteness = _whiteness(res_ok, nu_names)
 
-    warnings += _sanity(M, D_L, D_Q, M_RB, ci, nu_rms, nu_names, fitted)
+    warnings += _sanity(M, D_L, D_Q, problem.plant["M_RB"], ci, nu_rms, nu_names, fitted)
     nonid = fitting.nonidentifiable_pairs(names, corr)
     warnings += _evidence_warnings(names, values, ci, nonid, n_res)
     extras["matrices"] = {"M": M.tolist(), "D_L": D_L.tolist(), "D_Q": D_Q.tolist()}
@@ -160,22 +211,26 @@ def identify_maneuver(
     )
 
 
-def _check_log(data: ManeuverData, vessel: VesselSpec, method: str, validation_fraction: float,
-               coriolis: str, damping: str, oe_base: str, effect: str | None) -> None:
-    """The arguments and the log, before anything is computed: a ValueError for a wrong argument,
-    a TrialError (one line per problem) for a log that cannot be fitted."""
-    if effect is not None:
+def _check_args(vessel: VesselSpec, method: str, oe_base: str, effect: str | CatalogueEffect | None) -> None:
+    """The fit's own arguments: a ValueError naming the wrong one."""
+    if isinstance(effect, str):
         effect_names(effect, vessel.dof)  # validates the name
-        if method != "output_error":
-            raise ValueError("an effect extension is fitted by output error (method='output_error')")
+    if effect is not None and method != "output_error":
+        raise ValueError("an effect extension is fitted by output error (method='output_error')")
     if method not in METHODS:
         raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
+    if oe_base not in ("vessel", "ls"):
+        raise ValueError(f"oe_base must be 'vessel' or 'ls', got {oe_base!r}")
+
+
+def _check_log(data: ManeuverData, vessel: VesselSpec, validation_fraction: float, coriolis: str,
+               damping: str) -> None:
+    """The preparation's arguments and the log, before anything is computed: a ValueError for a
+    wrong argument, a TrialError (one line per problem) for a log that cannot be fitted."""
     if coriolis not in CORIOLIS:
         raise ValueError(f"coriolis must be one of {', '.join(CORIOLIS)}, got {coriolis!r}")
     if damping not in ("full", "diagonal"):
         raise ValueError(f"damping must be 'full' or 'diagonal', got {damping!r}")
-    if oe_base not in ("vessel", "ls"):
-        raise ValueError(f"oe_base must be 'vessel' or 'ls', got {oe_base!r}")
     if not 0.0 <= validation_fraction < 0.9:
         raise ValueError(f"validation_fraction must be in [0, 0.9), got {validation_fraction}")
     if data.dof != vessel.dof:
@@ -308,9 +363,11 @@ def _coriolis_form(vessel: VesselSpec, coriolis: str, damping: str, warnings: li
 
 def _estimate(method: str, vessel: VesselSpec, prep: _Prepared, fit_setup: _SimSetup, ls: _LSResult,
               plant: dict[str, np.ndarray], oe_added_mass: bool, oe_base: str, max_nfev: int,
-              warnings: list[str], effect: str | None, oe_start: dict[str, float] | None,
+              warnings: list[str], effect: str | CatalogueEffect | None, oe_start: dict[str, float] | None,
               extras: dict[str, Any]) -> tuple:
-    """The final estimate: the LS fit itself, or output error started from it; its CIs and label."""
+    """The final estimate: the LS fit itself, or output error started from it; its CIs and label.
+    An effect object (a located variant, a combination) is fitted as it is; a name goes through
+    ``_output_error``, which locates an effect with variants (which thruster)."""
     if method == "ls":
         M, D_L, D_Q = ls.M, ls.D_L, ls.D_Q
         names, values = ls.names, ls.values
@@ -322,10 +379,128 @@ def _estimate(method: str, vessel: VesselSpec, prep: _Prepared, fit_setup: _SimS
         extras["ci_inflation"] = infl
         method_label = f"maneuver LS ({ls.note})"
     else:
-        (M, D_L, D_Q, names, values, cov, ci, corr, n_res, oe_info) = _output_error(
+        oe = _output_error_one if isinstance(effect, CatalogueEffect) else _output_error
+        (M, D_L, D_Q, names, values, cov, ci, corr, n_res, oe_info) = oe(
             vessel, prep, fit_setup, ls, plant, oe_added_mass, oe_base, max_nfev, warnings, effect, oe_start)
         extras.update(oe_info)
         method_label = (f"maneuver output error (diagonal D_L, D_Q{', added mass' if oe_added_mass else ''}; "
                         f"start: {ls.note}; other entries from the "
                         f"{'vessel file' if oe_base == 'vessel' else 'LS fit'})")
     return M, D_L, D_Q, names, values, ci, corr, n_res, method_label
+
+
+# -- screening combinations of extensions (the diagnosis's pair search) ---------------------------
+
+@dataclass
+class Screened:
+    """One set of extensions after a joint Gauss-Newton step from the baseline fit: the fitting
+    cost (sum of squared normalised residuals, the baseline's segment states), the held-out NRMSE
+    (as ``FitResult.nrmse_validation``) and the stepped values, where a refit starts."""
+
+    members: tuple[int, ...]
+    cost: float
+    nrmse_validation: float
+    start: dict[str, float]
+    rows: int  # residuals in the cost
+
+
+def _coarse_setup(setup: _SimSetup) -> _SimSetup:
+    """The setup on the output-error Jacobian's coarser grid (every c-th sample, ``_coarse_sim``):
+    a screen compares models, which the coarse grid does as well at a fraction of the cost."""
+    from seafmu.identification.maneuver.estimation import _coarse_sim
+
+    got = _coarse_sim(setup)
+    if got is None:
+        return setup
+    sim, c = got
+    return _SimSetup(sim, setup.meas[:, ::c], setup.mask[:, ::c], setup.scale, None)
+
+
+def screen_extensions(problem: ManeuverProblem, start: dict[str, float], members: list[CatalogueEffect],
+                      subsets: list[tuple[int, ...]]) -> list[Screened] | None:
+    """Each subset of ``members`` (effect objects: located variants, or effects) screened without a
+    fit: from the fitted baseline ``start`` (its damping diagonals and its segment states), the
+    residuals' Jacobian in the damping and in every member's parameters is taken once (one batched
+    simulation), then each subset gets a Gauss-Newton step in the damping and its own members'
+    parameters (small normal equations), and is simulated there on the fitted part and on the
+    held-out part (two batched simulations for all subsets). A pair whose members act together
+    shows here even where each member's own fit was stuck. None when the baseline itself does not
+    simulate."""
+    from seafmu.identification.effects.base import Combined  # the effects package is light
+    from seafmu.identification.maneuver.estimation import _log_key, _recall_states
+    from seafmu.identification.maneuver.simulation import _sim_residual
+
+    vessel, plant, prep = problem.vessel, problem.plant, problem.prep
+    x0 = _recall_states(_log_key(problem.fit_setup), start)
+    setup = _coarse_setup(problem.fit_setup)
+    val = _coarse_setup(problem.val_setup) if problem.val_setup is not None else None
+    d = vessel.dof
+    M0, DL0, DQ0 = plant["M"].copy(), plant["D_L"].copy(), plant["D_Q"].copy()
+    damp: list[tuple[str, int]] = []  # (name, DOF) of the fitted damping diagonals
+    for i in range(d):
+        for name, mat in ((f"D_L[{i},{i}]", DL0), (f"D_Q[{i},{i}]", DQ0)):
+            if name in start:
+                mat[i, i] = start[name]
+                damp.append((name, i))
+        M0[i, i] = start.get(f"M[{i},{i}]", M0[i, i])
+    allm = Combined(members, d)
+    enames = allm.maneuver_params(d)
+    sizes = [len(m.maneuver_params(d)) for m in members]
+    offs = np.concatenate([[0], np.cumsum(sizes)]).astype(int)
+    # the reference: the start's values of the members it has (a fit with some of them), else absent
+    absent = np.concatenate([np.full(n, m.absent) for m, n in zip(members, sizes, strict=True)])
+    ref = np.array([start.get(nm, a) for nm, a in zip(enames, absent, strict=True)])
+    h_e = np.asarray(allm.maneuver_scales(prep.tau), dtype=float)
+    nu_rms = np.sqrt(np.mean(prep.nu_raw**2, axis=0))
+    sQ = np.maximum(np.abs(np.diag(DQ0)), 1e-3 * np.diag(M0))
+    h_d = np.array([1e-2 * (sQ[i] if nm.startswith("D_Q") else max(abs(DL0[i, i]), sQ[i] * nu_rms[i] + 1e-6))
+                    for nm, i in damp])
+    nD, nE = len(damp), len(enames)
+
+    def simulate(s: _SimSetup, dD: np.ndarray, E: np.ndarray, states: np.ndarray | None) -> np.ndarray:
+        """Flat residuals (K, rows) of K models: damping changes dD (K, nD), effect values E (K, nE)."""
+        K = E.shape[0]
+        M, DL, DQ = (np.repeat(a[None], K, axis=0) for a in (M0, DL0, DQ0))
+        for j, (nm, i) in enumerate(damp):
+            (DQ if nm.startswith("D_Q") else DL)[:, i, i] += dD[:, j]
+        X0 = None if states is None else np.broadcast_to(states, (K, *states.shape))
+        r = _sim_residual(s, M, DL, DQ, X0, **allm.maneuver_terms(E))[:, s.mask]
+        return r.reshape(K, -1)
+
+    # the Jacobian: the reference, each damping diagonal moved, each effect parameter moved
+    K = 1 + nD + nE
+    dD = np.zeros((K, nD))
+    dD[1 + np.arange(nD), np.arange(nD)] = h_d
+    E = np.repeat(ref[None], K, axis=0)
+    E[1 + nD + np.arange(nE), np.arange(nE)] += h_e
+    R = simulate(setup, dD, E, x0)
+    if not np.all(np.isfinite(R[0])):
+        return None
+    R = np.where(np.isfinite(R), R, 1e3)
+    J = (R[1:] - R[0]) / np.concatenate([h_d, h_e])[:, None]  # (nD + nE, rows)
+    G, b = J @ J.T, J @ R[0]
+    steps = np.zeros((len(subsets), nD + nE))
+    for k, sub in enumerate(subsets):
+        cols = list(range(nD)) + [nD + j for m in sub for j in range(offs[m], offs[m + 1])]
+        A = G[np.ix_(cols, cols)]
+        cs = np.sqrt(np.maximum(np.diag(A), 1e-300))
+        steps[k, cols] = -np.linalg.lstsq(A / np.outer(cs, cs), b[cols] / cs, rcond=None)[0] / cs
+    Es = ref[None] + steps[:, nD:]
+    fit_r = simulate(setup, steps[:, :nD], Es, x0)
+    costs = np.where(np.all(np.isfinite(fit_r), axis=1), np.sum(fit_r**2, axis=1), np.inf)
+    if val is not None:
+        vr = simulate(val, steps[:, :nD], Es, None).reshape(len(subsets), -1, d)  # normalised residuals
+        y = val.meas[val.mask]
+        spread = np.sqrt(np.sum((y - y.mean(axis=0)) ** 2, axis=0)) / val.scale
+        nr = np.mean(np.sqrt(np.sum(vr**2, axis=1)) / np.maximum(spread, 1e-300), axis=1)
+        nr = np.where(np.isfinite(nr), nr, np.inf)
+    else:
+        nr = np.full(len(subsets), np.nan)
+    out = []
+    for k, sub in enumerate(subsets):
+        st = {nm: float(start[nm] + steps[k, j]) for j, (nm, _) in enumerate(damp)}
+        st = {k2: (max(v, 0.0) if k2.startswith("D_Q") else v) for k2, v in st.items()}
+        for m in sub:
+            st.update({enames[j]: float(Es[k, j]) for j in range(offs[m], offs[m + 1])})
+        out.append(Screened(tuple(sub), float(costs[k]), float(nr[k]), st, int(fit_r.shape[1])))
+    return out
