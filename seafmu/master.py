@@ -665,9 +665,13 @@ def _loop(scenario: Scenario, units: list[Unit], mode: str, progress: bool, log:
         sink.begin(["time", *names])
     apply_events(0.0)
     record(0, 0.0)
-    step_time = {u.name: 0.0 for u in units}
-    steps = {u.name: 0 for u in units}
+    n_events = len(events)
+    spent = [0.0] * len(units)  # per unit: seconds in set/step/get, and steps taken
+    stepped = [0] * len(units)
     mults = [i.step_multiple for i in scenario.instances]
+    # What a unit's step needs, looked up once: its bound calls, output slice, input index map.
+    plan = [(j, u.set_inputs if len(src_idx[j]) else None, u.do_step, u.get_outputs, out_slices[j],
+             src_idx[j], mults[j]) for j, u in enumerate(units)]
     # An FMU stepping every m master steps computes its outputs for t + m h at once; they are
     # published when the master reaches t + m h, not earlier (no values from the future).
     pending: dict[int, np.ndarray] = {}
@@ -695,6 +699,8 @@ def _loop(scenario: Scenario, units: list[Unit], mode: str, progress: bool, log:
     def result(wall: float) -> RunResult:
         signals = {name: col for name, col in zip(names, [*rec[:n_done].T, *extra_rec[:n_done].T],
                                                   strict=True)}
+        step_time = {u.name: spent[j] for j, u in enumerate(units)}
+        steps = {u.name: stepped[j] for j, u in enumerate(units)}
         r = RunResult(scenario, times[:n_done], signals, wall, step_time, steps, mode, log,
                       t_end=k_done * h, interrupted=stop.name if k_done < n_steps else "")
         if pacer is not None:
@@ -707,33 +713,33 @@ def _loop(scenario: Scenario, units: list[Unit], mode: str, progress: bool, log:
             if stop.signum is not None:
                 break
             t = k * h
-            apply_events(t)
+            if ev_i < n_events and events[ev_i][0] <= t + eps:
+                apply_events(t)
             # Jacobi: every FMU reads the bus as it stood before any FMU stepped; Gauss-Seidel the bus
             src = bus.copy() if jacobi else bus
-            for j, u in enumerate(units):
-                m = mults[j]
-                if k % m:
+            for j, set_inputs, do_step, get_outputs, sl, idx, m in plan:
+                if m != 1 and k % m:
                     if (k + 1) % m == 0:
-                        bus[out_slices[j]] = pending.pop(j)
+                        bus[sl] = pending.pop(j)
                     continue
                 t0 = perf()
                 try:
-                    if len(src_idx[j]):
-                        u.set_inputs(src[src_idx[j]])
-                    u.do_step(t, h * m)
+                    if set_inputs is not None:
+                        set_inputs(src[idx])
+                    do_step(t, h * m)
                     if m == 1:
-                        bus[out_slices[j]] = u.get_outputs()
+                        bus[sl] = get_outputs()
                     else:
-                        pending[j] = u.get_outputs().copy()
+                        pending[j] = get_outputs().copy()
                 except SimulationError:
                     raise
                 except Exception as exc:
-                    err = u.step_error(f"step at t = {t:.3f} s", exc)
+                    err = units[j].step_error(f"step at t = {t:.3f} s", exc)
                     if err is exc:
                         raise
                     raise err from None
-                step_time[u.name] += perf() - t0
-                steps[u.name] += 1
+                spent[j] += perf() - t0
+                stepped[j] += 1
             k_done = k + 1
             if k_done % rec_every == 0:
                 record(k_done // rec_every, k_done * h)
