@@ -6,9 +6,11 @@ from __future__ import annotations
 
 import copy
 import hashlib
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from seafmu.components.vessel_spec import NU_NAMES, VesselSpec
 from seafmu.identification import arrowlm, fitting
@@ -136,8 +138,9 @@ def _ls_joint(prep: _Prepared, rows: np.ndarray, g: np.ndarray, damping: str) ->
             k += 1
     # per-DOF Gram matrices once (the weights only scale them): few, large BLAS calls, which a
     # busy shared machine serves far better than many
-    grams = [X[:, i, :].T @ X[:, i, :] for i in range(d)]
-    cross = [X[:, i, :].T @ y[:, i] for i in range(d)]
+    Xd = np.ascontiguousarray(X.transpose(1, 0, 2))  # per DOF contiguous: the strided product is 10x slower
+    grams = [Xd[i].T @ Xd[i] for i in range(d)]
+    cross = [Xd[i].T @ y[:, i] for i in range(d)]
 
     def solve(w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Weighted normal equations (column-scaled): theta and (X^T W X)^-1."""
@@ -149,11 +152,11 @@ def _ls_joint(prep: _Prepared, rows: np.ndarray, g: np.ndarray, damping: str) ->
 
     w = 1.0 / np.maximum(y.std(axis=0), 1e-12)  # first pass: each DOF row scaled to unit spread
     theta, G = solve(w)
-    E = y - np.einsum("ndp,p->nd", X, theta)
+    E = y - X @ theta
     sd = np.sqrt(np.sum(E**2, axis=0) / max(n - P / d, 1))
     w = 1.0 / np.maximum(sd, 1e-12 * max(float(np.max(sd)), 1e-300))
     theta, G = solve(w)  # second pass: weights from the residual spread per DOF (feasible GLS)
-    E = y - np.einsum("ndp,p->nd", X, theta)
+    E = y - X @ theta
     s2 = float(np.sum((E * w) ** 2)) / max(n * d - P, 1)
     cov = s2 * G
     M = np.zeros((d, d))
@@ -174,7 +177,13 @@ def _ls_joint(prep: _Prepared, rows: np.ndarray, g: np.ndarray, damping: str) ->
 
 def _run_ls(prep: _Prepared, rows: np.ndarray, vessel: VesselSpec, plant: dict[str, np.ndarray],
             coriolis: str, damping: str, warnings: list[str]) -> _LSResult:
-    """The equation-error fit in the requested form."""
+    """The equation-error fit in the requested form, BLAS single-threaded (``_output_error``)."""
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _run_ls_form(prep, rows, vessel, plant, coriolis, damping, warnings)
+
+
+def _run_ls_form(prep: _Prepared, rows: np.ndarray, vessel: VesselSpec, plant: dict[str, np.ndarray],
+                 coriolis: str, damping: str, warnings: list[str]) -> _LSResult:
     d = vessel.dof
     n = prep.t.size
     g_all = _Restoring(vessel)(prep.eta[:, 3], prep.eta[:, 4]) if d == 6 else np.zeros((n, 3))
@@ -233,6 +242,17 @@ def _output_error(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | None, 
     ``info["variants"]`` lists every variant, best first: its screening costs and, where fitted,
     its value, CI, cost and AIC.
     """
+    # BLAS single-threaded: its matrices here are small (a few hundred columns at most), and threads
+    # contending on a busy 2-core machine made a fit 2-5x slower (measured)
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _output_error_located(vessel, prep, setup, ls, plant, added_mass, base, max_nfev, warnings,
+                                     effect, start)
+
+
+def _output_error_located(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | None, ls: _LSResult,
+                          plant: dict[str, np.ndarray], added_mass: bool, base: str, max_nfev: int,
+                          warnings: list[str], effect: str | None, start: dict[str, float] | None) -> tuple:
+    """``_output_error`` (see there): one fit, or the effect's variants screened and the best fitted."""
     eff = maneuver_effect(effect) if effect is not None else None
     variants = getattr(eff, "maneuver_variants", None)
     if eff is None or variants is None:
@@ -490,7 +510,7 @@ def _interp_rows(Rc: np.ndarray, c: int) -> np.ndarray:
 # The segments' fitted initial states of recent output-error fits, by log and model parameters: an
 # extension fit started from a baseline's parameters (the diagnosis) starts from its states too (the
 # measured ones would undo most of what the baseline's fit gained).
-_STATES: list[tuple[str, tuple[str, ...], np.ndarray, np.ndarray]] = []
+_STATES: list[tuple[str, tuple[str, ...], np.ndarray, np.ndarray, dict[str, float]]] = []
 _STATES_MAX = 16
 # A fit warm started so (its model one effect away from a fitted one) takes at most this many function
 # evaluations: an effect that is there converges in far fewer (measured: 2-11), one that is not creeps
@@ -505,23 +525,39 @@ def _log_key(setup: _SimSetup) -> str:
     return h.hexdigest()
 
 
-def _remember_states(key: str, names: list[str], values: np.ndarray, x0: np.ndarray) -> None:
-    """Keep a fit's segment states (the oldest of ``_STATES_MAX`` dropped)."""
+def _remember_states(key: str, names: list[str], values: np.ndarray, x0: np.ndarray,
+                     hold: dict[str, float] | None = None) -> None:
+    """Keep a fit's segment states and the damping entries it held (the oldest of ``_STATES_MAX``
+    dropped)."""
     del _STATES[: max(0, len(_STATES) - _STATES_MAX + 1)]
-    _STATES.append((key, tuple(names), np.array(values, dtype=float), x0.copy()))
+    _STATES.append((key, tuple(names), np.array(values, dtype=float), x0.copy(), dict(hold or {})))
+
+
+def _recalled(key: str, start: dict[str, float] | None) -> tuple | None:
+    """The remembered fit of this log whose every parameter ``start`` gives at exactly its fitted
+    value, else the latest fit of this log; None when there is no start or no such fit."""
+    if not start:
+        return None
+    mine = [e for e in _STATES if e[0] == key]
+    for e in reversed(mine):
+        if all(start.get(n) == v for n, v in zip(e[1], e[2].tolist(), strict=True)):
+            return e
+    return mine[-1] if mine else None
 
 
 def _recall_states(key: str, start: dict[str, float] | None) -> np.ndarray | None:
     """The fitted segment states of an earlier fit of this log whose every parameter ``start``
     gives at exactly its fitted value, else of the latest fit of this log (a start the caller
     still compares with the measured states); None when there is no start or no such fit."""
-    if not start:
-        return None
-    mine = [(names, values, x0) for k, names, values, x0 in _STATES if k == key]
-    for names, values, x0 in reversed(mine):
-        if all(start.get(n) == v for n, v in zip(names, values.tolist(), strict=True)):
-            return x0
-    return mine[-1][2] if mine else None
+    e = _recalled(key, start)
+    return None if e is None else e[3]
+
+
+def _recall_holds(key: str, start: dict[str, float] | None) -> dict[str, float]:
+    """The quadratic damping entries the recalled fit (``_recalled``) held at 0, those ``start``
+    gives no value of: a fit started from a fitted model starts with its active set."""
+    e = _recalled(key, start)
+    return {} if e is None else {k: v for k, v in e[4].items() if k not in (start or {})}
 
 
 def _output_error_one(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | None, ls: _LSResult,
@@ -530,7 +566,20 @@ def _output_error_one(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | No
                       start: dict[str, float] | None) -> tuple:
     """One output-error fit, with the effect object ``eff``'s parameters (or none). Quadratic
     damping is dissipative: a diagonal entry fitted negative is held at 0 and the fit repeated
-    (an active set; a short, slow log cannot tell v from v|v| and trades one against the other)."""
+    (an active set; a short, slow log cannot tell v from v|v| and trades one against the other).
+    Started from a fitted model (the diagnosis's extensions, from the baseline), the fit starts with
+    the entries that model held (``_recall_holds``) still held, and frees them only where the cost
+    falls when one rises from 0 (the bound is then not active): one fit instead of two."""
+    inherit = _recall_holds(_log_key(setup), start) if setup is not None else {}
+    if inherit:
+        w: list[str] = []
+        out = _output_error_held(vessel, prep, setup, ls, plant, added_mass, base, max_nfev, w, eff,
+                                 start, inherit, check_hold=True)
+        if not out[9]["hold_released"]:
+            warnings += [*w, f"quadratic damping {', '.join(inherit)} held at 0 (dissipative), as in the fit "
+                             "this one starts from (the cost rises when it rises from 0)"]
+            return out
+        start = {**(start or {}), **dict(zip(out[3], out[4].tolist(), strict=True))}
     out = _output_error_held(vessel, prep, setup, ls, plant, added_mass, base, max_nfev, warnings, eff,
                              start, {})
     names, p = out[3], out[4]
@@ -545,11 +594,33 @@ def _output_error_one(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | No
     return again
 
 
+def _hold_released(setup: _SimSetup, hold: dict[str, float], plant: dict[str, np.ndarray], mats: Callable,
+                   terms: Callable, p: np.ndarray, x0: np.ndarray, cost: float) -> list[str]:
+    """The held quadratic damping entries whose fitting cost falls when each rises from its held
+    value by a hundredth of its scale (the vessel file's, at least 1e-3 of the mass): bounds that
+    are not active. One batched simulation from the fit's parameters ``p`` and segment states."""
+    keys = [k for k in hold if k.startswith("D_Q[")]
+    if not keys:
+        return []
+    P = np.repeat(p[None], len(keys), axis=0)
+    M, DL, DQ = mats(P)
+    for j, k in enumerate(keys):
+        i = int(k[k.index("[") + 1 : k.index(",")])
+        DQ[j, i, i] = hold[k] + 1e-2 * max(float(plant["D_Q"][i, i]), 1e-3 * float(plant["M"][i, i]))
+    r = _sim_residual(setup, M, DL, DQ, np.repeat(x0[None], len(keys), axis=0), **terms(P))
+    r = np.where(setup.mask[None, :, :, None], np.where(np.isfinite(r), r, 1e3), 0.0)
+    costs = 0.5 * np.sum(r.reshape(len(keys), -1) ** 2, axis=1)
+    return [k for k, c in zip(keys, costs.tolist(), strict=True) if c < cost]
+
+
 def _output_error_held(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | None, ls: _LSResult,
                        plant: dict[str, np.ndarray], added_mass: bool, base: str, max_nfev: int,
                        warnings: list[str], eff: CatalogueEffect | None,
-                       start: dict[str, float] | None, hold: dict[str, float]) -> tuple:
-    """One output-error fit with the damping entries in ``hold`` (name -> value) kept fixed."""
+                       start: dict[str, float] | None, hold: dict[str, float],
+                       check_hold: bool = False) -> tuple:
+    """One output-error fit with the damping entries in ``hold`` (name -> value) kept fixed;
+    ``check_hold``: ``info["hold_released"]`` lists the held quadratic entries whose cost falls when
+    they rise from their held value (a bound that is not active)."""
     # Over 80 lines: the parameter layout (model diagonals, added mass, effect parameters, one initial
     # state per segment) is shared by the closures mats/terms/residuals/jac; split apart, each would
     # need the same ten arrays passed in, and the layout would be written in two places.
@@ -695,7 +766,9 @@ def _output_error_held(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | N
     p = sol.x[:npar] * scales
     if not sol.success:
         warnings.append(f"output-error optimiser stopped: {sol.message}")
-    _remember_states(log_key, names, p, sol.x[npar:].reshape(S, nx) * x_scale)
+    _remember_states(log_key, names, p, sol.x[npar:].reshape(S, nx) * x_scale, hold)
+    released = _hold_released(setup, hold, plant, mats, terms, sol.x[:npar] * scales,
+                              sol.x[npar:].reshape(S, nx) * x_scale, sol.cost) if check_hold else []
     r = sol.fun[maskd.reshape(S, -1)]  # the compared residuals, in time order
     infl = _autocorr_inflation(r.reshape(-1, d))
     # s^2 (J^T J)^-1 over model and initial-state parameters (column-scaled pseudo-inverse), model block,
@@ -709,5 +782,5 @@ def _output_error_held(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | N
     info = {"oe_nfev": int(sol.nfev), "oe_cost": float(sol.cost), "oe_start_from": start_from,
             "oe_start": dict(zip(names, p0.tolist(), strict=True)), "ci_inflation": infl,
             "oe_status": sol.message, "effect": None if eff is None else eff.name,
-            "effect_terms": {k: v[0] for k, v in terms(p[None]).items()}}
+            "effect_terms": {k: v[0] for k, v in terms(p[None]).items()}, "hold_released": released}
     return M, DL, DQ, names, p, cov, ci, corr, r.size, info
