@@ -299,23 +299,38 @@ def update_selection(
         for i in range(m):
             s += K[r, i] * y[i]
         x[r] += s
-    # (I - KH) P = P - K (H P); Pn = A1 - (A1 H^T) K^T + (K R) K^T, fused (m is 1-6)
-    A1 = np.empty((n, n))
+    # (I - KH) P = P - K (H P); Pn = A1 - (A1 H^T) K^T + (K R) K^T, fused (m is 1-6). Each entry's
+    # sum over the m channels runs in channel order starting from 0.0; the loops run over a whole
+    # row at once (independent entries side by side, which the compiler can vectorise).
+    KT = np.empty((m, n))
     for r in range(n):
+        for i in range(m):
+            KT[i, r] = K[r, i]
+    A1 = np.zeros((n, n))
+    for r in range(n):
+        for i in range(m):
+            kri = K[r, i]
+            pi = idx[i]
+            for c in range(n):
+                A1[r, c] += kri * P[pi, c]
         for c in range(n):
-            t = 0.0
-            for i in range(m):
-                t += K[r, i] * P[idx[i], c]
-            A1[r, c] = P[r, c] - t
+            A1[r, c] = P[r, c] - A1[r, c]
     Pn = np.empty((n, n))
+    t1 = np.empty(n)
+    t2 = np.empty(n)
     for r in range(n):
         for c in range(n):
-            t1 = 0.0
-            t2 = 0.0
-            for i in range(m):
-                t1 += A1[r, idx[i]] * K[c, i]
-                t2 += (K[r, i] * var[i]) * K[c, i]
-            Pn[r, c] = A1[r, c] - t1 + t2
+            t1[c] = 0.0
+            t2[c] = 0.0
+        for i in range(m):
+            a = A1[r, idx[i]]
+            kr = K[r, i] * var[i]
+            for c in range(n):
+                kc = KT[i, c]
+                t1[c] += a * kc
+                t2[c] += kr * kc
+        for c in range(n):
+            Pn[r, c] = A1[r, c] - t1[c] + t2[c]
     for i in range(n):
         for j in range(n):
             P[i, j] = (Pn[i, j] + Pn[j, i]) * 0.5
