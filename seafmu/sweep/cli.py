@@ -9,12 +9,13 @@ when SIGINT, SIGTERM or SIGHUP stopped the study (finished cases kept; a rerun c
 from __future__ import annotations
 
 import argparse
+import contextlib
 import shutil
 import sys
 from pathlib import Path
 from typing import Any
 
-from seafmu.sweep.study import Study, StudyError, load_study
+from seafmu.sweep.study import Study, StudyError, load_study, validate_cases
 
 
 def register(sub: Any) -> None:
@@ -64,10 +65,32 @@ def _build(study: Study) -> None:
     from seafmu.build import build_fmu
     from seafmu.scenario import load_scenario
 
-    sc = load_scenario(study.scenario_file)
+    sc = next(iter(study.scenarios.values()), None) or load_scenario(study.scenario_file)
     for inst in sc.instances:
         if inst.kind is not None and build_fmu(sc.vessel, inst.kind).rebuilt:
             print(f"built {sc.vessel} {inst.kind}")
+
+
+def _prepare(study: Study, out: Path, workers: int | None, scheduler: str | None) -> Any:
+    """Validate every case, starting the local cluster (returned; None if there is nothing to run
+    or the study runs on an existing scheduler) once the first case is valid, so that its workers
+    spawn and warm up while the rest are validated. A case that does not validate closes it."""
+    from seafmu.sweep.execute import StudyFolder, default_workers, scheduler_address, start_local_cluster
+
+    validate_cases(study, study.cases[:1])  # most mistakes show in the first case: no cluster for them
+    _build(study)
+    done = StudyFolder(out).finished(study) if out.is_dir() else {}
+    todo = len(study.cases) - len(done)
+    cluster = None
+    if todo and scheduler_address(scheduler) is None:
+        cluster = start_local_cluster(min(workers or default_workers(), todo), study.scenario_file)
+    try:
+        validate_cases(study, study.cases[1:])
+    except BaseException:
+        if cluster is not None:
+            cluster.close(timeout=10)
+        raise
+    return cluster
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
@@ -77,22 +100,30 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
     if args.workers is not None and args.workers < 1:
         raise StudyError(f"--workers {args.workers}: must be at least 1")
-    study = load_study(study_path(args.study))  # every case validated here, before anything runs
+    study = load_study(study_path(args.study), validate=False)
     out = Path(args.out) if args.out else Path("results") / "sweeps" / study.name
     if args.dry_run:
+        validate_cases(study)
         done = StudyFolder(out).finished(study) if out.is_dir() else {}
         for line in _case_table(study, done):
             print(line)
         print(f"{study.name}: {len(study.cases)} cases, all valid; {len(study.cases) - len(done)} to run"
               f"{f' ({len(done)} finished in {out})' if done else ''}")
         return 0
-    _build(study)
     stop = StopRequest()
-    with stop_on_signals(stop), StudyFolder(out) as folder:
-        if study.source.resolve() != (out / "study.yaml").resolve():  # what was run, beside its results
-            shutil.copyfile(study.source, out / "study.yaml")
+    with stop_on_signals(stop), contextlib.ExitStack() as stack:
+        cluster = _prepare(study, out, args.workers, args.scheduler)  # every case valid before anything runs
+        try:
+            folder = stack.enter_context(StudyFolder(out))
+            if study.source.resolve() != (out / "study.yaml").resolve():  # what was run, beside its results
+                shutil.copyfile(study.source, out / "study.yaml")
+        except BaseException:
+            if cluster is not None:
+                cluster.close(timeout=10)
+            raise
         outcome = run_study(study, folder, workers=args.workers, scheduler=args.scheduler,
-                            progress=not args.quiet, stop=stop)
+                            progress=not args.quiet, stop=stop, cluster=cluster)  # closes the cluster
+        stack.callback(outcome.close)
         cases = write_cases(study, folder, outcome.rows)
         report, worst = write_study_report(study, outcome, out)
     statuses = [r["status"] for r in outcome.rows.values()]

@@ -11,11 +11,18 @@
   nothing is lost and nothing done twice; a changed study reruns only the cases it changed.
   ``cases.parquet`` is made from the rows at the end (also after an interruption). The folder is
   locked (flock) while a study runs in it.
+- Start-up: the local cluster is started (``start_local_cluster``) while the study's cases are still
+  being validated; its workers spawn at once and warm up (``seafmu.sweep.warm``: imports, FMUs,
+  compiled kernels) in their own processes meanwhile. Small studies hand each case its scenario
+  as validated, so a worker does not validate it again. Once the cases are out, a background
+  thread imports what cases.parquet and the report need; once they are in, the cluster closes in
+  the background while they are written (``Outcome.close``).
 - Stop: SIGINT, SIGTERM and SIGHUP only set a flag (``seafmu.master.stop_on_signals``); the loop
   then cancels the cases not finished, closes the client and the cluster, and keeps every row
-  already written. Worker processes start with SIGINT ignored, so a Ctrl-C in the terminal (which
-  reaches the whole process group) does not kill them mid-case with tracebacks; the parent closes
-  them.
+  already written. Worker processes start with SIGINT ignored (inherited from a short window in
+  which the parent ignores it while they are spawned, and set again by their preload), so a Ctrl-C
+  in the terminal (which reaches the whole process group) does not kill them mid-case with
+  tracebacks; the parent closes them.
 """
 
 from __future__ import annotations
@@ -24,11 +31,13 @@ import contextlib
 import fcntl
 import json
 import logging
+import multiprocessing
 import os
 import signal
+import threading
 import time
-from collections.abc import Iterator
-from dataclasses import dataclass
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -37,6 +46,7 @@ import numpy as np
 from seafmu.master import StopRequest
 from seafmu.outdir import atomic_path, atomic_write_text
 from seafmu.sweep.study import Case, Study, StudyError
+from seafmu.sweep.warm import WARMUP_ENV
 from seafmu.sweep.worker import PASS, run_case
 
 LOCK_FILE = ".seafmu-sweep.lock"
@@ -169,22 +179,78 @@ def _sigint_ignored() -> Iterator[None]:
         signal.signal(signal.SIGINT, old)
 
 
-def make_client(workers: int | None, scheduler: str | None) -> tuple[Any, Any]:
-    """(client, local cluster or None): an existing scheduler if one is named, else a local one."""
-    from distributed import Client, LocalCluster
+SPAWN_WAIT_S = 10.0  # longest the parent ignores SIGINT while the worker processes are spawned
 
-    address = scheduler or os.environ.get("DASK_SCHEDULER_ADDRESS") or None
+
+def start_local_cluster(workers: int, warmup: Path | None = None) -> Any:
+    """A local cluster of ``workers`` processes (one thread each, 127.0.0.1, no dashboard), returned
+    as soon as they are spawned: they import, register and warm up (on ``warmup``, the base
+    scenario) while the caller goes on; tasks submitted meanwhile wait for them."""
+    from distributed import LocalCluster
+
+    cluster = LocalCluster(n_workers=0, threads_per_worker=1, processes=True, host="127.0.0.1",
+                           dashboard_address=None, silence_logs=logging.ERROR, preload=["seafmu.sweep.warm"],
+                           env={WARMUP_ENV: str(warmup)} if warmup is not None else {})
+    try:
+        with _sigint_ignored():
+            before = len(multiprocessing.active_children())
+            cluster.scale(workers)
+            deadline = time.monotonic() + SPAWN_WAIT_S
+            while len(multiprocessing.active_children()) < before + workers and time.monotonic() < deadline:
+                time.sleep(0.005)
+    except BaseException:
+        with contextlib.suppress(Exception):
+            cluster.close(timeout=10)
+        raise
+    return cluster
+
+
+def make_client(workers: int | None, scheduler: str | None, cluster: Any = None) -> tuple[Any, Any]:
+    """(client, local cluster or None): an existing scheduler if one is named, else ``cluster``
+    (started already) or a new local one."""
+    from distributed import Client
+
+    address = scheduler_address(scheduler)
     if address:
         try:
             return Client(address, timeout="15s"), None
         except (OSError, TimeoutError, ValueError) as exc:
             where = "--scheduler" if scheduler else "DASK_SCHEDULER_ADDRESS"
             raise StudyError(f"{where} {address}: cannot connect ({' '.join(str(exc).split())})") from None
-    n = workers or default_workers()
-    with _sigint_ignored():
-        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
-                               dashboard_address=None, silence_logs=logging.ERROR)
+    if cluster is None:
+        cluster = start_local_cluster(workers or default_workers())
     return Client(cluster), cluster
+
+
+def scheduler_address(scheduler: str | None) -> str | None:
+    """The existing scheduler a study runs on (``--scheduler``, else DASK_SCHEDULER_ADDRESS), or None."""
+    return scheduler or os.environ.get("DASK_SCHEDULER_ADDRESS") or None
+
+
+def _import_for_results() -> None:
+    """What cases.parquet and the report import, loaded while the cases run (the parent is idle)."""
+    with contextlib.suppress(Exception):
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot
+        import pandas  # noqa: F401
+        import pyarrow.parquet  # noqa: F401
+        import scipy.stats  # noqa: F401
+
+
+def _closer(client: Any, cluster: Any) -> Callable[[], None]:
+    """Close the client and the local cluster in a background thread; the returned call waits."""
+    def close() -> None:
+        with contextlib.suppress(Exception):
+            client.close(timeout=10)
+        if cluster is not None:
+            with contextlib.suppress(Exception):
+                cluster.close(timeout=10)
+
+    t = threading.Thread(target=close, name="seafmu-sweep-close", daemon=True)
+    t.start()
+    return lambda: t.join(timeout=30)
 
 
 @dataclass
@@ -196,17 +262,20 @@ class Outcome:
     rows: dict[int, dict[str, Any]]
     wall_time: float
     workers: int
+    close: Callable[[], None] = field(default=lambda: None)  # waits until the cluster is closed
 
 
 def _task(study: Study, c: Case) -> dict[str, Any]:
     return {"case": c.index, "key": c.key, "seed": c.seed, "inputs": c.inputs, "overrides": c.overrides,
-            "scenario": str(study.scenario_file), "metrics": [m.model_dump() for m in study.model.metrics],
-            "keep": list(study.model.keep)}
+            "scenario": str(study.scenario_file), "resolved": study.scenarios.get(c.index),
+            "metrics": [m.model_dump() for m in study.model.metrics], "keep": list(study.model.keep)}
 
 
 def run_study(study: Study, folder: StudyFolder, workers: int | None = None, scheduler: str | None = None,
-              progress: bool = True, stop: StopRequest | None = None) -> Outcome:
-    """Run the cases not finished yet on Dask; rows are written as cases finish."""
+              progress: bool = True, stop: StopRequest | None = None, cluster: Any = None) -> Outcome:
+    """Run the cases not finished yet on Dask; rows are written as cases finish. ``cluster``: a
+    local cluster started already (``start_local_cluster``); it is closed here. The returned
+    outcome's ``close()`` waits for the cluster to be closed (in the background)."""
     from distributed import as_completed
 
     stop = stop or StopRequest()
@@ -215,17 +284,27 @@ def run_study(study: Study, folder: StudyFolder, workers: int | None = None, sch
     todo = [c for c in study.cases if c.index not in rows]
     t0 = time.perf_counter()
     if not todo:
+        if cluster is not None:
+            cluster.close(timeout=10)
         return Outcome(len(study.cases), skipped, 0, "", rows, 0.0, 0)
     n_workers = min(workers or default_workers(), len(todo))
-    client, cluster = make_client(n_workers, scheduler)
+    try:
+        client, cluster = make_client(n_workers, scheduler, cluster)
+    except BaseException:
+        if cluster is not None:
+            with contextlib.suppress(Exception):
+                cluster.close(timeout=10)
+        raise
     bar = None
     ran = 0
     futures: dict[Any, Case] = {}
     try:
-        n_workers = len(client.scheduler_info().get("workers", {})) or n_workers
+        n_workers = len(cluster.worker_spec) if cluster is not None else (
+            len(client.scheduler_info().get("workers", {})) or n_workers)
         for c in todo:
             fut = client.submit(run_case, _task(study, c), key=f"seafmu-case-{c.index}-{c.key}", pure=False)
             futures[fut] = c
+        threading.Thread(target=_import_for_results, name="seafmu-sweep-imports", daemon=True).start()
         if progress:
             from tqdm import tqdm
 
@@ -235,7 +314,7 @@ def run_study(study: Study, folder: StudyFolder, workers: int | None = None, sch
         while not ac.is_empty() and not stop.requested:
             batch = ac.next_batch(block=False)
             if not batch:
-                time.sleep(0.1)
+                time.sleep(0.05)
                 continue
             for fut in batch:
                 c = futures[fut]
@@ -263,10 +342,6 @@ def run_study(study: Study, folder: StudyFolder, workers: int | None = None, sch
         if pending:
             with contextlib.suppress(Exception):
                 client.cancel(pending)
-        with contextlib.suppress(Exception):
-            client.close(timeout=10)
-        if cluster is not None:
-            with contextlib.suppress(Exception):
-                cluster.close(timeout=10)
+        close = _closer(client, cluster)
     return Outcome(len(study.cases), skipped, ran, stop.name if stop.requested else "", rows,
-                   time.perf_counter() - t0, n_workers)
+                   time.perf_counter() - t0, n_workers, close)

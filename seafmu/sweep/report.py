@@ -14,10 +14,6 @@ import math
 from pathlib import Path
 from typing import Any
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
 
 from seafmu.outdir import atomic_path, atomic_write_text
@@ -40,11 +36,14 @@ def wilson(k: int, n: int, confidence: float = CONFIDENCE) -> tuple[float, float
 
 
 def check_bounds(study: Study) -> dict[str, tuple[float | None, float | None]]:
-    """Each check of the base scenario: (min, max), by the name the results carry."""
-    from seafmu.scenario import load_scenario
+    """Each check of the base scenario: (min, max), by the name the results carry (the checks kept
+    by the study's validation, else read again)."""
+    checks = study.checks
+    if checks is None:
+        from seafmu.scenario import load_scenario
 
-    sc = load_scenario(study.scenario_file)
-    return {check_name(c): (c.min, c.max) for c in sc.checks}
+        checks = load_scenario(study.scenario_file).checks
+    return {check_name(c): (c.min, c.max) for c in checks}
 
 
 def margin(value: float, lo: float | None, hi: float | None) -> float:
@@ -63,12 +62,28 @@ def _bound_text(lo: float | None, hi: float | None) -> str:
     return " and ".join(p for p in parts if p)
 
 
+def _figure(width: float, height: float, nrow: int = 1, ncol: int = 1) -> tuple[Any, np.ndarray]:
+    """A figure on the Agg canvas, outside pyplot (no global figure list), and its axes grid."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(width, height))
+    FigureCanvasAgg(fig)
+    return fig, fig.subplots(nrow, ncol, squeeze=False)
+
+
+def _margins(fig: Any, left: float, right: float, bottom: float, top: float, wspace: float = 0.2,
+             hspace: float = 0.2) -> None:
+    """Margins in inches, set directly: the panels are a fixed grid, so tight_layout's measuring
+    of every label (most of a figure's drawing time) is not needed."""
+    w, h = fig.get_size_inches()
+    fig.subplots_adjust(left=min(left / w, 0.6), right=1 - right / w, bottom=min(bottom / h, 0.4),
+                        top=max(1 - top / h, 0.5), wspace=wspace, hspace=hspace)
+
+
 def _save(fig: Any, path: Path) -> None:
-    try:
-        with atomic_path(path) as tmp:
-            fig.savefig(tmp, dpi=100, format="png")
-    finally:
-        plt.close(fig)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=100, format="png")
 
 
 def _numeric(col: Any) -> bool:
@@ -103,7 +118,8 @@ def worst_cases(frame: Any, bounds: Bounds, n: int) -> list[dict[str, Any]]:
 
 
 def _plot_pass_rates(rows: list[tuple[str, int, int]], path: Path) -> None:
-    fig, ax = plt.subplots(figsize=(9, 0.45 * len(rows) + 1.2))
+    fig, axes = _figure(9, 0.45 * len(rows) + 1.2)
+    ax = axes[0, 0]
     y = np.arange(len(rows))
     for i, (_, k, n) in enumerate(rows):
         p = k / n if n else math.nan
@@ -115,7 +131,7 @@ def _plot_pass_rates(rows: list[tuple[str, int, int]], path: Path) -> None:
     ax.set_xlim(-2, 102)
     ax.set_xlabel(f"pass rate [%] with {CONFIDENCE:.0%} Wilson interval")
     ax.grid(True, axis="x", alpha=0.3)
-    fig.tight_layout()
+    _margins(fig, 0.25 + 0.055 * max(len(r[0][:70]) for r in rows), 0.25, 0.55, 0.15)
     _save(fig, path)
 
 
@@ -123,18 +139,17 @@ def _plot_distributions(frame: Any, cols: list[str], bounds: Bounds, path: Path)
     n = len(cols)
     ncol = min(3, n)
     nrow = math.ceil(n / ncol)
-    fig, axes = plt.subplots(nrow, ncol, figsize=(4.2 * ncol, 3.0 * nrow), squeeze=False)
+    fig, axes = _figure(4.2 * ncol, 3.0 * nrow + 0.4, nrow, ncol)
     for ax, col in zip(axes.flat, cols, strict=False):
         v = frame[col].astype(float).to_numpy()
         v = v[np.isfinite(v)]
         name = col.split(": ", 1)[1]
-        if v.size:
-            ax.hist(v, bins=min(30, max(5, v.size // 3)), color="C0", alpha=0.6)
-            ax2 = ax.twinx()
+        if v.size:  # histogram and ECDF on one axis, both as fractions of the cases
+            ax.hist(v, bins=min(30, max(5, v.size // 3)), weights=np.full(v.size, 1 / v.size), color="C0",
+                    alpha=0.6)
             xs = np.sort(v)
-            ax2.step(xs, np.arange(1, xs.size + 1) / xs.size, where="post", color="k", lw=1)
-            ax2.set_ylim(0, 1.02)
-            ax2.set_ylabel("ECDF", fontsize=7)
+            ax.step(xs, np.arange(1, xs.size + 1) / xs.size, where="post", color="k", lw=1)
+            ax.set_ylim(0, 1.02)
         lo, hi = bounds.get(name, (None, None)) if col.startswith(CHECK) else (None, None)
         for b in (lo, hi):
             if b is not None:
@@ -143,8 +158,9 @@ def _plot_distributions(frame: Any, cols: list[str], bounds: Bounds, path: Path)
         ax.tick_params(labelsize=7)
     for ax in list(axes.flat)[n:]:
         ax.axis("off")
-    fig.suptitle("distribution of each check value (red: its bound) and metric", fontsize=9)
-    fig.tight_layout()
+    fig.suptitle("distribution of each check value (red: its bound) and metric: fraction of cases per bin "
+                 "(bars) and cumulative (line)", fontsize=9)
+    _margins(fig, 0.45, 0.2, 0.35, 0.6, wspace=0.25, hspace=0.45)
     _save(fig, path)
 
 
@@ -159,7 +175,7 @@ def _positions(col: Any) -> tuple[np.ndarray, list[str] | None]:
 
 def _plot_inputs(frame: Any, inputs: list[str], cols: list[str], bounds: Bounds, path: Path) -> None:
     nrow, ncol = len(cols), len(inputs)
-    fig, axes = plt.subplots(nrow, ncol, figsize=(3.4 * ncol + 0.6, 2.3 * nrow + 0.6), squeeze=False)
+    fig, axes = _figure(3.4 * ncol + 0.6, 2.3 * nrow + 0.6, nrow, ncol)
     rng = np.random.default_rng(0)
     for j, inp in enumerate(inputs):
         x, labels = _positions(frame[inp])
@@ -188,7 +204,7 @@ def _plot_inputs(frame: Any, inputs: list[str], cols: list[str], bounds: Bounds,
             if j == 0:
                 ax.set_ylabel(name[:28], fontsize=6)
     fig.suptitle("each varied input against each check (green pass, red fail) and metric", fontsize=9)
-    fig.tight_layout()
+    _margins(fig, 0.75, 0.15, 0.5, 0.5, wspace=0.3, hspace=0.3)
     _save(fig, path)
 
 
@@ -197,7 +213,7 @@ def _plot_maps(frame: Any, a: str, b: str, cols: list[str], path: Path) -> None:
     n = len(cols)
     ncol = min(3, n)
     nrow = math.ceil(n / ncol)
-    fig, axes = plt.subplots(nrow, ncol, figsize=(4.4 * ncol, 3.6 * nrow), squeeze=False)
+    fig, axes = _figure(4.4 * ncol, 3.6 * nrow + 0.4, nrow, ncol)
     xs = sorted(frame[a].unique())
     ys = sorted(frame[b].unique())
     for ax, col in zip(axes.flat, cols, strict=False):
@@ -224,7 +240,7 @@ def _plot_maps(frame: Any, a: str, b: str, cols: list[str], path: Path) -> None:
     for ax in list(axes.flat)[n:]:
         ax.axis("off")
     fig.suptitle(f"maps over {a} and {b} (x: a failed check)", fontsize=9)
-    fig.tight_layout()
+    _margins(fig, 0.6, 0.1, 0.5, 0.6, wspace=0.45, hspace=0.45)
     _save(fig, path)
 
 

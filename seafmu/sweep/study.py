@@ -40,6 +40,9 @@ from seafmu.yamlfile import read_mapping, validation_message
 
 Scalar = float | int | str | bool
 MAX_CASES = 100_000  # a study larger than this is a mistake more often than a plan
+# Validated scenarios kept for the workers (so a case is validated once, not again in its worker) up to
+# this many cases: about 30 kB each, held by this process and the scheduler until the case runs.
+KEEP_SCENARIOS = 2_000
 SAMPLING_METHODS = ("lhs", "sobol", "saltelli", "random")
 _QUANTITY = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*([A-Za-z/.^2]+)\s*$")
 _TARGET = re.compile(r"^[A-Za-z_][A-Za-z0-9_-]*\.[A-Za-z_][A-Za-z0-9_\[\].]*(@.+)?$")
@@ -182,6 +185,10 @@ class Study:
     units: dict[str, str]  # input -> the unit its values are written in ("" if none)
     design: np.ndarray | None = None  # unit-cube design of the sampled inputs (saltelli: for SALib)
     sampled_names: list[str] = field(default_factory=list)
+    # filled by validate_cases: each case's resolved scenario (up to KEEP_SCENARIOS cases) and the
+    # base scenario's checks (overrides set parameters and events, never checks)
+    scenarios: dict[int, Any] = field(default_factory=dict)
+    checks: list[Any] | None = None
 
     @property
     def scenario_arg(self) -> str:
@@ -436,17 +443,22 @@ def case_overrides(case: Case) -> list[Override]:
     return [parse_override(o) for o in case.overrides]
 
 
-def validate_cases(study: Study) -> None:
-    """Every case as a scenario (``load_scenario``, the ``seafmu run`` path), the kept signals and
-    metric signals among its recorded outputs; the first problem is one line naming the case."""
+def validate_cases(study: Study, cases: list[Case] | None = None) -> None:
+    """Every case (or ``cases``) as a scenario (``load_scenario``, the ``seafmu run`` path), the kept
+    signals and metric signals among its recorded outputs; the first problem is one line naming the
+    case. The resolved scenarios are kept for the workers when the study is small enough."""
     path = study.source
-    for c in study.cases:
+    keep = len(study.cases) <= KEEP_SCENARIOS
+    for c in study.cases if cases is None else cases:
         try:
             sc = load_scenario(study.scenario_file, case_overrides(c), c.seed)
         except ScenarioError as exc:
             raise StudyError(f"{path}: case {c.index} ({', '.join(c.overrides) or 'base'}"
                              f"{'' if c.seed is None else f', seed {c.seed}'}): {exc}") from None
-        if c.index == 0:
+        if keep:
+            study.scenarios[c.index] = sc
+        if study.checks is None:
+            study.checks = list(sc.checks)
             recorded = {f"{i}.{v}" for i, v in sc.outputs}
             for k, sig in enumerate(study.model.keep):
                 if sig not in recorded:

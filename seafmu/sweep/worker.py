@@ -1,7 +1,9 @@
 """One case of a study, in a worker process: the same scenario loading and master as ``seafmu run``.
 
 A worker process keeps its unpacked FMUs for all its cases (``seafmu.master``: one FMU set per
-process); each case instantiates and frees its own FMU instances. Whatever goes wrong in a case
+process); each case instantiates and frees its own FMU instances. A case comes with its scenario
+resolved by the study's validation when the study is small (``study.KEEP_SCENARIOS``), so it is not
+validated twice; otherwise it is loaded here exactly as ``seafmu run`` loads it. Whatever goes wrong in a case
 comes back as its row (status ``error`` and the one-line reason), never as an exception that would
 reach the study: a failing case never stops the others.
 """
@@ -66,7 +68,9 @@ def run_case(task: dict[str, Any]) -> dict[str, Any]:
                            "worker": f"{socket.gethostname()}:{os.getpid()}"}
     result = None
     try:
-        sc = load_scenario(task["scenario"], [parse_override(o) for o in task["overrides"]], task["seed"])
+        sc = task.get("resolved")  # validated by the study already (a small study), else validated here
+        if sc is None:
+            sc = load_scenario(task["scenario"], [parse_override(o) for o in task["overrides"]], task["seed"])
         try:
             result = run(sc, mode="fmu", progress=False)
         except SimulationError as exc:
