@@ -540,11 +540,10 @@ def search_combinations(trial: Trial, base: FitResult, singles: list[Candidate],
 
 
 # Maneuver logs: pairs fitted at most (best screened first); a screened pair must beat the screened
-# model of each of its parts (stepped from the same reference) by this held-out NRMSE ratio and
-# AIC margin before it is fitted (a screen is one Gauss-Newton step: it finds, the fit judges).
+# model of each of its parts (stepped from the same reference) by this held-out NRMSE ratio before
+# it is fitted (a screen is one Gauss-Newton step: it finds, the fit judges).
 MANEUVER_PAIRS = 2
-SCREEN_RATIO = 1.01
-SCREEN_DAIC = -10.0
+SCREEN_RATIO = 1.02
 MANEUVER_REFERENCES = 2  # single-effect fits the pairs are screened from (lowest AIC first)
 # Evaluations of a part's own fit (started from the pair's values): a part alone is the worse model
 # wherever the pair is right, and its cost falls most in the first few steps.
@@ -585,15 +584,18 @@ def _maneuver_combinations(trial: Trial, base: FitResult, singles: list[Candidat
     """Pairs of maneuver extensions (two effects, or two located thrusters), screened cheaply and
     the promising ones fitted, warm started, and judged like any combination.
 
-    Screen (``maneuver.fit.screen_extensions``): from the single-effect fits of lowest AIC (at most
-    ``MANEUVER_REFERENCES``, each beating the baseline's AIC; else the baseline: a pair may explain
-    what each part alone cannot), one Gauss-Newton step in the damping and the pair's parameters,
-    simulated on the fitted and the held-out part. A pair is fitted only where its step beats the
-    step of each of its parts from the same reference by ``SCREEN_RATIO`` held out and
-    ``SCREEN_DAIC``; the best ``MANEUVER_PAIRS`` of those, started from the step (and from the
-    accepted single fits' values). Then the rule against the baseline and against each part alone
-    (fitted now from the pair's values where the single search did not fit it: a thruster it did
-    not locate).
+    Screen (``maneuver.fit.screen_extensions``): from the single-effect fits (accepted ones first,
+    then lowest AIC; at most ``MANEUVER_REFERENCES``, each beating the baseline's AIC; else from the
+    baseline: a pair may explain what each part alone cannot), one Gauss-Newton step in the damping
+    and the pair's parameters, simulated on the fitted and the held-out part. A pair is fitted only
+    where its step beats the step of each of its parts from the same reference by ``SCREEN_RATIO``
+    held out, beats every accepted single fit held out by the rule's ratio (the
+    cause must, ``choose``), and claims nothing its effects deny (``contradiction``: a lost thruster
+    delivering more than its nominal thrust). The best ``MANEUVER_PAIRS`` of those are fitted,
+    started from the step (and from the accepted single fits' values); a further pair only while
+    its step is about as good as that of a pair already accepted (a rival explanation). Then the
+    rule against the baseline and against each part alone (fitted now from the pair's values where
+    the single search did not fit it: a thruster it did not locate).
     """
     from seafmu.identification.maneuver.fit import screen_extensions
 
@@ -604,13 +606,17 @@ def _maneuver_combinations(trial: Trial, base: FitResult, singles: list[Candidat
     # alone may be held back by the other part's absence (held out worse), yet its fit is near the
     # pair's
     ranked = sorted((c for c in singles if c.fit is not None and c.delta_aic <= rule.max_delta_aic),
-                    key=lambda c: c.fit.aic)  # type: ignore[union-attr]
+                    key=lambda c: (not c.accepted, c.fit.aic))  # type: ignore[union-attr]
     refs: list[tuple[dict[str, float], list[int]]] = []  # (reference values, the members it has)
     for c in ranked[:MANEUVER_REFERENCES]:
         refs.append((dict(c.fit.params), [i for i, s in single_of.items() if s is c]))  # type: ignore[union-attr]
     if not refs:
         refs.append((dict(base.params), []))
     promising: dict[frozenset[int], Any] = {}
+    noise = min((noise_level(c.fit) for c in singles if c.fit is not None), default=noise_level(base))
+    # the held-out error a pair must beat (choose: a combination over every accepted simpler one)
+    best_single = min((c.fit.nrmse_validation for c in singles if c.accepted and c.fit is not None),
+                      default=math.inf)
     for values, have in refs:
         pairs = [(i, j) for i in range(len(members)) for j in range(i + 1, len(members))
                  if _pairable(members[i], members[j], d) and (not have or i in have or j in have)]
@@ -627,12 +633,14 @@ def _maneuver_combinations(trial: Trial, base: FitResult, singles: list[Candidat
         for i, j in pairs:
             pair = by[(i, j)]
             parts = [by[(k,)] for k in (i, j) if (k,) in by] or [by[()]]
-            if all(_screen_passes(pair, sub, d, members) for sub in parts):
+            if pair.nrmse_validation * rule.min_ratio > best_single or _claim_contradicted(
+                    trial, [members[i], members[j]], pair.start, noise):
+                continue  # cannot beat an accepted single effect, or claims what the data deny
+            if all(_screen_passes(pair, sub) for sub in parts):
                 old = promising.get(frozenset((i, j)))
                 if old is None or pair.nrmse_validation < old.nrmse_validation:
                     promising[frozenset((i, j))] = pair
     out: list[Candidate] = []
-    noise = min((noise_level(c.fit) for c in singles if c.fit is not None), default=noise_level(base))
     best_screen = math.inf  # the screened held-out NRMSE of the first accepted pair
     for pair in sorted(promising.values(), key=lambda sc: sc.nrmse_validation)[:MANEUVER_PAIRS]:
         if pair.nrmse_validation > SCREEN_RATIO * best_screen:
@@ -652,15 +660,20 @@ def _maneuver_combinations(trial: Trial, base: FitResult, singles: list[Candidat
     return out
 
 
-def _screen_passes(pair: Any, sub: Any, d: int, members: list[Any]) -> bool:
-    """A screened pair beats a screened sub-model by the screen's margins (held out, AIC)."""
-    if not (math.isfinite(pair.nrmse_validation) and math.isfinite(pair.cost) and pair.cost > 0):
+def _claim_contradicted(trial: Trial, objs: list[Any], values: dict[str, float], noise: float) -> bool:
+    """A screened combination's values already claim what its effects deny (a "lost" thruster
+    delivering more than its nominal thrust)."""
+    return any(o.contradiction({q: values[q] for q in o.maneuver_params(maneuver_problem(trial).vessel.dof)
+                                if q in values}, trial, None, noise) for o in objs)
+
+
+def _screen_passes(pair: Any, sub: Any) -> bool:
+    """A screened pair beats a screened sub-model held out by ``SCREEN_RATIO`` (the fitting cost is
+    not compared: one step from a fit of another model can overshoot there and still point the
+    right way; the fit of the pair is judged by the whole rule)."""
+    if not (math.isfinite(pair.nrmse_validation) and pair.nrmse_validation > 0):
         return False
-    if not sub.nrmse_validation >= SCREEN_RATIO * pair.nrmse_validation:
-        return False
-    extra = sum(len(members[k].maneuver_params(d)) for k in pair.members if k not in sub.members)
-    dAIC = pair.rows * math.log(pair.cost / sub.cost) + 2.0 * extra if sub.cost > 0 else math.inf
-    return dAIC <= SCREEN_DAIC
+    return sub.nrmse_validation >= SCREEN_RATIO * pair.nrmse_validation
 
 
 def _fit_members(trial: Trial, base: FitResult, objs: tuple[Any, ...], start: dict[str, float], rule: Rule,

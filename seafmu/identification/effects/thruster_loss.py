@@ -16,7 +16,7 @@ the efficiency's CI excluding 1) then decides whether any thruster is lost at al
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
@@ -70,6 +70,19 @@ class ThrusterLoss(CatalogueEffect):
 
     def evidence(self, params: dict[str, float], trial: Trial) -> str:
         return self.maneuver_evidence(params)
+
+    def contradiction(self, params: dict[str, float], trial: Trial, fit: Any, noise: float) -> str | None:
+        """A "lost" thruster fitted to deliver more than its nominal thrust (beyond the thrust law's
+        known accuracy, ``min_effect``, and its CI above 1) is not a loss: the log says something
+        else is wrong (another thruster, a current, the thrust law)."""
+        ci = getattr(fit, "ci95", None) or {}
+        for k, v in params.items():
+            i = thruster_of(k)
+            lo = ci.get(k, (v, v))[0]
+            if i is not None and v > self.absent + self.min_effect and lo > self.absent:
+                return (f"thruster {i + 1} would deliver {100.0 * v:.0f} % of its nominal thrust: more than "
+                        "the vessel file gives is not a loss")
+        return None
 
     # -- maneuver model --
 

@@ -393,8 +393,8 @@ def _estimate(method: str, vessel: VesselSpec, prep: _Prepared, fit_setup: _SimS
 
 @dataclass
 class Screened:
-    """One set of extensions after a joint Gauss-Newton step from the baseline fit: the fitting
-    cost (sum of squared normalised residuals, the baseline's segment states), the held-out NRMSE
+    """One set of extensions after a joint Gauss-Newton step from a reference fit: the fitting cost
+    (sum of squared normalised residuals, the reference's segment states), the held-out NRMSE
     (as ``FitResult.nrmse_validation``) and the stepped values, where a refit starts."""
 
     members: tuple[int, ...]
@@ -419,7 +419,7 @@ def _coarse_setup(setup: _SimSetup) -> _SimSetup:
 def screen_extensions(problem: ManeuverProblem, start: dict[str, float], members: list[CatalogueEffect],
                       subsets: list[tuple[int, ...]]) -> list[Screened] | None:
     """Each subset of ``members`` (effect objects: located variants, or effects) screened without a
-    fit: from the fitted baseline ``start`` (its damping diagonals and its segment states), the
+    fit: from a fitted model ``start`` (its damping diagonals and the effect values it has), the
     residuals' Jacobian in the damping and in every member's parameters is taken once (one batched
     simulation), then each subset gets a Gauss-Newton step in the damping and its own members'
     parameters (small normal equations), and is simulated there on the fitted part and on the
@@ -431,6 +431,9 @@ def screen_extensions(problem: ManeuverProblem, start: dict[str, float], members
     from seafmu.identification.maneuver.simulation import _sim_residual
 
     vessel, plant, prep = problem.vessel, problem.plant, problem.prep
+    # the fitted part's segments restart from the states fitted with the reference (the measured
+    # ones carry the sensor noise, whose transients would swamp the step); the held-out part's from
+    # the measured states, as its NRMSE does
     x0 = _recall_states(_log_key(problem.fit_setup), start)
     setup = _coarse_setup(problem.fit_setup)
     val = _coarse_setup(problem.val_setup) if problem.val_setup is not None else None
