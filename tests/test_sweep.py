@@ -4,6 +4,7 @@ as one-line errors, and a worst case reproduced exactly by its printed command."
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shlex
@@ -174,6 +175,77 @@ seeds: [4]
     assert "(7 before, 0 now)" in third.stdout
 
 
+def _descends_from(pid: int, ancestor: int) -> bool:
+    """Whether process ``pid`` is ``ancestor`` or one of its descendants (Linux /proc)."""
+    while pid > 1:
+        if pid == ancestor:
+            return True
+        try:
+            stat = Path(f"/proc/{pid}/stat").read_text()
+        except OSError:
+            return False
+        pid = int(stat.rsplit(")", 1)[1].split()[1])  # the field after the state: the parent's pid
+    return False
+
+
+def _stop(proc: subprocess.Popen[bytes]) -> None:
+    """Stop a process started in its own session, and its children (the worker under a nanny)."""
+    if proc.poll() is None:
+        os.killpg(proc.pid, signal.SIGTERM)
+        try:
+            proc.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait(timeout=10)
+    with contextlib.suppress(ProcessLookupError):  # a child left behind by the leader
+        os.killpg(proc.pid, signal.SIGKILL)
+
+
+def test_study_on_an_existing_scheduler(tmp_path: Path, built_fmus: object) -> None:
+    """A plain `dask scheduler` / `dask worker` pair on 127.0.0.1 (a free port chosen by the scheduler,
+    no dashboard) runs a 3-case study given by --scheduler, and again by DASK_SCHEDULER_ADDRESS:
+    every case on that one worker process, none on a local cluster; both torn down after."""
+    _write(tmp_path, 6, "name: remote\nscenario: base.yaml\nseeds: [2]\n"
+           "vary:\n  plant.current_speed: {values: [0.05, 0.1, 0.15], unit: m/s}\n")
+    dask_cli = Path(sys.executable).with_name("dask")
+    sched_file = tmp_path / "scheduler.json"
+    scheduler = subprocess.Popen([str(dask_cli), "scheduler", "--host", "127.0.0.1", "--port", "0",
+                                  "--no-dashboard", "--scheduler-file", str(sched_file)], cwd=tmp_path,
+                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    worker = None
+    try:
+        deadline = time.monotonic() + 60
+        while not sched_file.is_file() and time.monotonic() < deadline and scheduler.poll() is None:
+            time.sleep(0.05)
+        address = json.loads(sched_file.read_text())["address"]
+        assert address.startswith("tcp://127.0.0.1:"), address
+        worker = subprocess.Popen([str(dask_cli), "worker", address, "--nworkers", "1", "--nthreads", "1",
+                                   "--no-dashboard", "--host", "127.0.0.1",
+                                   "--local-directory", str(tmp_path / "dask-worker")],
+                                  cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                                  start_new_session=True)
+        env = {k: v for k, v in os.environ.items() if k != "DASK_SCHEDULER_ADDRESS"}
+        runs = [(["--scheduler", address, "--out", "out"], env),
+                (["--out", "out_env"], {**env, "DASK_SCHEDULER_ADDRESS": address})]
+        for args, run_env in runs:
+            proc = _sweep(["study.yaml", "--workers", "4", "-q", *args], tmp_path, env=run_env)
+            assert proc.returncode in (0, 1), proc.stderr
+            assert "3 of 3 cases finished (0 before, 3 now on 1 workers" in proc.stdout, proc.stdout
+            frame = pd.read_parquet(tmp_path / args[-1] / "cases.parquet")
+            assert frame["case"].tolist() == [0, 1, 2]
+            assert frame["plant.current_speed"].tolist() == [0.05, 0.1, 0.15]
+            assert frame["seed"].tolist() == [2, 2, 2]
+            assert set(frame["status"]) <= {"pass", "fail"}, frame["error"].tolist()
+            assert np.all(np.isfinite(frame["check: north error"]))
+            (where,) = set(frame["worker"])  # one worker process ran every case: the dask worker's
+            assert _descends_from(int(where.rsplit(":", 1)[1]), worker.pid), where
+    finally:
+        if worker is not None:
+            _stop(worker)
+        _stop(scheduler)
+    assert worker.returncode is not None and scheduler.returncode is not None
+
+
 @pytest.mark.parametrize("study, expected", [
     ("name: x\nscenario: base.yaml\nvary: {plant.current_speed: {uniform: [0, 1]}}\nbogus: 1\n",
      "bogus: unknown field"),
@@ -277,3 +349,25 @@ sampling: {method: saltelli, samples: 256, seed: 1}
     s_speed, s_dir = ([float(x) for x in cell.split(" / ")] for cell in row[1:])
     assert s_speed[0] > 0.9 and s_speed[1] > 0.9
     assert abs(s_dir[0]) < 0.05 and abs(s_dir[1]) < 0.05
+
+
+def test_case_with_its_validated_scenario_runs_as_one_loaded_in_the_worker(tmp_path: Path,
+                                                                            built_fmus: object) -> None:
+    """A small study hands each case the scenario its validation resolved; a large one (above
+    KEEP_SCENARIOS) lets the worker load it. Both give the same row, bit for bit."""
+    from seafmu.sweep.execute import _task
+    from seafmu.sweep.study import KEEP_SCENARIOS
+    from seafmu.sweep.worker import run_case
+
+    s = load_study(_write(tmp_path, 6, "name: r\nscenario: base.yaml\nseeds: [3]\n"
+                          "vary:\n  plant.current_speed: {values: [0.12], unit: m/s}\n"))
+    (case,) = s.cases
+    assert s.scenarios[0].seed == 3 and len(s.cases) <= KEEP_SCENARIOS
+    given = _task(s, case)
+    loaded = {**given, "resolved": None}
+    rows = [run_case(t) for t in (given, loaded)]
+    assert rows[0]["status"] in ("pass", "fail")
+    skip = {"wall_time_s", "cpu_time_s", "loop_time_s", "realtime_factor"}
+    assert {k: v for k, v in rows[0].items() if k not in skip} == {k: v for k, v in rows[1].items()
+                                                                   if k not in skip}
+    assert any(k.startswith("check: ") for k in rows[0])
