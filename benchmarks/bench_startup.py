@@ -32,7 +32,7 @@ REPO = Path(__file__).resolve().parents[1]
 # Runs `python -m MODULE ARGS` (or -c CODE) with seafmu's package names mapped to a checkout's
 # folders, as the editable install maps them to this one.
 LAUNCH = """
-import importlib.abc, importlib.util, runpy, sys
+import importlib.abc, importlib.machinery, importlib.util, runpy, sys
 root = sys.argv.pop(1)
 folders = {"seafmu": "seafmu", "seafmu.components": "components", "seafmu.fmus": "fmus",
            "seafmu.hardware": "hardware"}
@@ -42,6 +42,11 @@ class Finder(importlib.abc.MetaPathFinder):
             d = root + "/" + folders[name]
             return importlib.util.spec_from_file_location(name, d + "/__init__.py",
                                                           submodule_search_locations=[d])
+        if name.startswith("seafmu."):  # only in this checkout, never the installed one
+            spec = importlib.machinery.PathFinder.find_spec(name, path)
+            if spec is None:
+                raise ModuleNotFoundError(f"No module named {name!r}", name=name)
+            return spec
         return None
 sys.meta_path.insert(0, Finder())
 what = sys.argv.pop(1)
