@@ -229,6 +229,10 @@ class BlockSlave(Fmi2Slave):
                 self._real_idx[len(self.vars)] = real_slot[p.name]
             self._register_parameter(p)
         self._in_vrs = list(range(n_in))
+        self._sub_vrs: list[int] | None = None  # the last subset of inputs set, and its slots
+        self._sub_idx = np.zeros(0, dtype=np.intp)
+        self._get_vrs: list[int] | None = None  # the last reals read (not all outputs), their slots
+        self._get_slots = np.zeros(0, dtype=np.intp)
         self._out_vrs = list(range(n_in, n_in + n_out))
         self._in_names = [s.name for s in iface.inputs]
         self._out_names = [s.name for s in iface.outputs]
@@ -324,11 +328,14 @@ class BlockSlave(Fmi2Slave):
             self._initialise()
         if vrs == self._out_vrs:  # the hot path: a master reading all outputs in order
             return self._y.tolist()
+        if vrs == self._get_vrs:  # the same variables as last time (a master reading the connected ones)
+            return self._real[self._get_slots].tolist()
         self._check_vrs(vrs)
         slots = self._vr2slot[vrs]
         if (slots < 0).any():
             bad = [self.vars[vr].name for vr, sl in zip(vrs, slots.tolist(), strict=True) if sl < 0]
             raise TypeError(f"variable(s) {', '.join(bad)} are not of type Real")
+        self._get_vrs, self._get_slots = vrs, slots
         return self._real[slots].tolist()
 
     @fmi_call
@@ -337,9 +344,13 @@ class BlockSlave(Fmi2Slave):
         if vrs == self._in_vrs:  # the hot path: a master setting all inputs in order
             self._u[:] = values
             return
+        if vrs == self._sub_vrs:  # the same inputs as last time (a master setting the connected ones)
+            self._u[self._sub_idx] = values
+            return
         self._check_vrs(vrs)
         if vrs and max(vrs) < n_in:  # inputs only (registered first: vr == slot)
             self._u[vrs] = values
+            self._sub_vrs, self._sub_idx = vrs, np.array(vrs, dtype=np.intp)
             return
         for vr, v in zip(vrs, values, strict=True):
             if vr < n_in:

@@ -454,6 +454,23 @@ class FmuUnit:
             raise _StatusError("fmi2GetReal")
         return self._out_np
 
+    def read_only(self, positions: list[int]) -> None:
+        """Name the outputs (positions in ``out_names``) ``get_some_outputs`` reads: a step that is
+        not recorded needs only the connected ones, and each value crossing the FMI layer costs."""
+        from fmpy.fmi2 import fmi2Real, fmi2ValueReference
+
+        vr = [self._vars[self.out_names[i]].valueReference for i in positions]
+        self._some_n = len(vr)
+        self._some_vr = (fmi2ValueReference * len(vr))(*vr)
+        self._some_buf = (fmi2Real * len(vr))()
+        self._some_np = np.ctypeslib.as_array(self._some_buf) if vr else np.zeros(0)
+
+    def get_some_outputs(self) -> np.ndarray:
+        """The outputs named by ``read_only``, in that order."""
+        if self._some_n and self._get(self._comp, self._some_vr, self._some_n, self._some_buf) > 1:
+            raise _StatusError("fmi2GetReal")
+        return self._some_np
+
     def do_step(self, t: float, h: float) -> None:
         if self._step(self._comp, t, h, 1) > 1:  # > fmi2Warning
             raise _StatusError("fmi2DoStep")
@@ -573,6 +590,18 @@ def _stop_unit(u: Unit) -> None:
     (close if callable(close) else u.terminate)()
 
 
+def _partial_read(u: Unit, out: slice, src_idx: list[np.ndarray]) -> tuple[Any, np.ndarray | None]:
+    """(read, bus slots) for a unit that can read some of its outputs (``get_some_outputs``) and whose
+    connected outputs are fewer than all: the steps that are not recorded read only those."""
+    if getattr(u, "get_some_outputs", None) is None:
+        return None, None
+    used = sorted({int(s) for idx in src_idx for s in idx.tolist() if out.start <= s < out.stop})
+    if len(used) == out.stop - out.start:
+        return None, None
+    u.read_only([s - out.start for s in used])  # type: ignore[attr-defined]
+    return u.get_some_outputs, np.array(used, dtype=int)  # type: ignore[attr-defined]
+
+
 def _loop(scenario: Scenario, units: list[Unit], mode: str, progress: bool, log: list[str],
           stop: StopRequest | None = None, sink: Sink | None = None) -> RunResult:
     # Long because it is the co-simulation algorithm read in one place: wiring, initial values in
@@ -671,7 +700,7 @@ def _loop(scenario: Scenario, units: list[Unit], mode: str, progress: bool, log:
     mults = [i.step_multiple for i in scenario.instances]
     # What a unit's step needs, looked up once: its bound calls, output slice, input index map.
     plan = [(j, u.set_inputs if len(src_idx[j]) else None, u.do_step, u.get_outputs, out_slices[j],
-             src_idx[j], mults[j]) for j, u in enumerate(units)]
+             src_idx[j], mults[j], *_partial_read(u, out_slices[j], src_idx)) for j, u in enumerate(units)]
     # An FMU stepping every m master steps computes its outputs for t + m h at once; they are
     # published when the master reaches t + m h, not earlier (no values from the future).
     pending: dict[int, np.ndarray] = {}
@@ -717,7 +746,8 @@ def _loop(scenario: Scenario, units: list[Unit], mode: str, progress: bool, log:
                 apply_events(t)
             # Jacobi: every FMU reads the bus as it stood before any FMU stepped; Gauss-Seidel the bus
             src = bus.copy() if jacobi else bus
-            for j, set_inputs, do_step, get_outputs, sl, idx, m in plan:
+            full = (k + 1) % rec_every == 0  # recorded after this step: every output, else the connected
+            for j, set_inputs, do_step, get_outputs, sl, idx, m, get_some, some in plan:
                 if m != 1 and k % m:
                     if (k + 1) % m == 0:
                         bus[sl] = pending.pop(j)
@@ -728,7 +758,10 @@ def _loop(scenario: Scenario, units: list[Unit], mode: str, progress: bool, log:
                         set_inputs(src[idx])
                     do_step(t, h * m)
                     if m == 1:
-                        bus[sl] = get_outputs()
+                        if full or get_some is None:
+                            bus[sl] = get_outputs()
+                        else:
+                            bus[some] = get_some()
                     else:
                         pending[j] = get_outputs().copy()
                 except SimulationError:
@@ -748,6 +781,9 @@ def _loop(scenario: Scenario, units: list[Unit], mode: str, progress: bool, log:
             if bar is not None and k % 200 == 0:
                 bar.update(min(200, n_steps - k))
         if k_done < n_steps and k_done % rec_every:  # stopped between two samples: keep the last step
+            for _, _, _, get_outputs, sl, _, m, get_some, _ in plan:
+                if m == 1 and get_some is not None:  # the outputs not read in that step
+                    bus[sl] = get_outputs()
             record(n_done, k_done * h)
     except BaseException as exc:
         if isinstance(exc, Exception):  # the results up to the failure travel with the error

@@ -139,3 +139,31 @@ def test_every_unit_class_offers_the_whole_unit_protocol() -> None:
         assert not missing, (cls.__name__, missing)
     exc = ValueError("x")
     assert BlockUnit.step_error(BlockUnit.__new__(BlockUnit), "step", exc) is exc
+
+
+class _StopAfter:
+    """A stop request that turns on after ``n`` master steps (the loop reads ``signum`` once a step)."""
+
+    def __init__(self, n: int) -> None:
+        self.reads, self.n = 0, n
+
+    @property
+    def signum(self) -> int | None:
+        self.reads += 1
+        return 15 if self.reads > self.n else None
+
+    name = "SIGTERM"
+
+
+def test_fmus_read_only_connected_outputs_between_records_yet_record_every_output(built_fmus: dict) -> None:
+    """Steps that are not recorded read only the connected outputs of an FMU; the recorded rows,
+    including the last one of a run stopped between two samples, hold every output of that step,
+    as the in-process composition (which reads all outputs every step) records them."""
+    sc = dataclasses.replace(_short("minerva2_dp", 2.0), record_every=2)
+    for steps in (7, 40):  # stopped between two samples (odd), or not
+        fmu = run(sc, mode="fmu", progress=False, stop=_StopAfter(steps))  # type: ignore[arg-type]
+        ref = run(sc, mode="inprocess", progress=False, stop=_StopAfter(steps))  # type: ignore[arg-type]
+        assert fmu.time[-1] == ref.time[-1] == steps * sc.step
+        for k in ref.signals:
+            np.testing.assert_allclose(fmu.signals[k], ref.signals[k], rtol=0, atol=1e-9, err_msg=k)
+        assert ref.signals["plant.sog"][-1] != ref.signals["plant.sog"][-2]  # not connected, moving
