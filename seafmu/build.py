@@ -17,8 +17,10 @@ import shutil
 import sys
 import tempfile
 import uuid
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import pythonfmu
 
@@ -30,13 +32,45 @@ REPO = Path(__file__).resolve().parents[1]
 KINDS = ("plant", "observer", "controller", "allocator")
 
 
-def _vessels_with_fmus() -> tuple[str, ...]:
+class _VesselsWithFmus(Sequence[str]):
     """Every bundled vessel file gets its FMUs (a new vessel is data only), except a variant of
-    another vessel (``extra.variant_of``), which is loaded into that vessel's FMUs by vessel_file."""
-    return tuple(v for v in bundled_vessels() if not load_vessel(v).extra.get("variant_of"))
+    another vessel (``extra.variant_of``), which is loaded into that vessel's FMUs by vessel_file.
+
+    Read when first asked, each file at most once: ``name in VESSELS``, which every scenario
+    asks, reads that vessel's file only (a vessel file takes ~30 ms to read; the list, all of them).
+    """
+
+    def __init__(self) -> None:
+        self._has_fmus: dict[str, bool] = {}
+        self._names: tuple[str, ...] | None = None
+
+    def _check(self, name: str) -> bool:
+        if name not in self._has_fmus:
+            self._has_fmus[name] = not load_vessel(name).extra.get("variant_of")
+        return self._has_fmus[name]
+
+    def names(self) -> tuple[str, ...]:
+        if self._names is None:
+            self._names = tuple(v for v in bundled_vessels() if self._check(v))
+        return self._names
+
+    def __contains__(self, name: object) -> bool:
+        return isinstance(name, str) and name in bundled_vessels() and self._check(name)
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self.names())
+
+    def __len__(self) -> int:
+        return len(self.names())
+
+    def __getitem__(self, i: Any) -> Any:
+        return self.names()[i]
+
+    def __repr__(self) -> str:
+        return repr(self.names())
 
 
-VESSELS = _vessels_with_fmus()
+VESSELS: Sequence[str] = _VesselsWithFmus()
 SOURCE_PACKAGES = ("components", "fmus")
 # Not copied into an FMU: caches, and the build tool that completes the modelDescription.
 BUNDLE_IGNORE = ("__pycache__", "*.pyc", "model_description.py")
@@ -206,7 +240,7 @@ def build_fmu(vessel: str, kind: str, force: bool = False) -> BuildResult:
     return BuildResult(out, rebuilt=True)
 
 
-def build_all(vessels: tuple[str, ...] = VESSELS, force: bool = False) -> list[BuildResult]:
+def build_all(vessels: Sequence[str] = VESSELS, force: bool = False) -> list[BuildResult]:
     return [build_fmu(v, k, force) for v in vessels for k in KINDS]
 
 
