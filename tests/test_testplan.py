@@ -1,10 +1,11 @@
 """seafmu testplan: the test plan recovers the vessel files' damping at the files' sensor noise.
 
-Tolerances (docs/testplan.md): supply vessel X_u, Y_v, N_r within 2 %, N_v within 5 %, Y_r and N_v
-inside their 95 % intervals (from the file's sensor noise, half-widths at most 50 % and 6 %);
-Minerva 2 quadratic surge/sway/yaw/roll/pitch damping within 3 %, the terms the file has as zero
-(coupled Y_r, N_v) predicting under 2 % of the trial's force at the trial's speed, their intervals
-holding 0.
+Tolerances (docs/testplan.md): supply vessel X_u, Y_v, N_r within 1 % (X_u 0.05 %), N_v within 5 %,
+Y_r and N_v inside their 95 % intervals (from the file's sensor noise, half-widths at most 50 % and
+6 %); Minerva 2 quadratic surge/sway/yaw/roll/pitch damping within 3 %, the terms the file has as
+zero (coupled Y_r, N_v) predicting under 2 % of the trial's force at the trial's speed, their
+intervals holding 0. Every diagonal term's 95 % interval holds the file's value and is at most
++-5 % wide (fixed seeds; coverage over 20 seeds in docs/testplan.md).
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from seafmu.components.vessel_spec import load_vessel
 from seafmu.identification.trial import load_trial
 from seafmu.testplan.cli import main
 from seafmu.testplan.design import plan, steady_speed
+from seafmu.testplan.intervals import robust_ci
 from seafmu.testplan.measure import run_trial
 from seafmu.testplan.runner import identified_table, identify_measurements, run_testplan
 
@@ -59,11 +61,57 @@ def supply_plan(tmp_path_factory: pytest.TempPathFactory) -> tuple[object, Path]
     return run_testplan("supply", out, seed=3), out
 
 
+DIAG_HALF_WIDTH = 0.05  # a diagonal term's 95 % interval wider than +-5 % would say nothing
+
+
+def _diagonal_intervals_hold_the_file(ident: dict, names: tuple[str, ...]) -> None:
+    """Each interval holds the file's value (too narrow fails) and is at most +-5 % (too wide fails)."""
+    for name in names:
+        row = ident[name]
+        lo, hi = row["ci95"]
+        assert lo <= row["file"] <= hi, (name, row)
+        assert 0.0 < 0.5 * (hi - lo) <= DIAG_HALF_WIDTH * abs(row["file"]), (name, row)
+
+
+def test_robust_interval_covers_under_correlated_noise() -> None:
+    """The cause of the too-narrow intervals, in miniature: a straight line fitted to noise correlated
+    over 41 samples (a Savitzky-Golay velocity's). s^2 (J^T J)^-1 holds the true slope in far fewer
+    than 95 % of 300 records; the intervals of ``robust_ci`` (noise propagated, Newey-West) in about
+    95 %, and are not inflated beyond twice the empirical spread."""
+    rng = np.random.default_rng(7)
+    n, width, slope = 600, 41, 0.3
+    t = np.linspace(0.0, 1.0, n)
+    jac = np.column_stack([np.ones(n), t])
+    kernel = np.ones(width) / math.sqrt(width)
+
+    def noise(k: int) -> np.ndarray:
+        return np.array([np.convolve(rng.normal(0.0, 1.0, n + width - 1), kernel, "valid") for _ in range(k)])
+
+    white = robust = 0
+    half, est = [], []
+    for e in noise(300):
+        y = 1.0 + slope * t + e
+        theta = np.linalg.lstsq(jac, y, rcond=None)[0]
+        rows = robust_ci(["a", "b"], theta, 2, jac, [y - jac @ theta], noise(100), width)
+        b = rows["b"]
+        white += abs(b["value"] - slope) <= 1.96 * b["se_white"]
+        robust += b["lo"] <= slope <= b["hi"]
+        half.append(0.5 * (b["hi"] - b["lo"]))
+        est.append(b["value"])
+    assert white < 0.6 * 300
+    assert 0.88 * 300 <= robust <= 300
+    assert float(np.median(half)) <= 2.0 * 1.96 * float(np.std(est))
+
+
 def test_supply_recovers_published_damping(supply_plan: tuple[object, Path]) -> None:
     res, _ = supply_plan
     v = load_vessel("supply")
     ident = res.identified
-    tol = {"X_u": 0.02, "Y_v": 0.02, "N_r": 0.02, "N_v": 0.05}
+    # X_u's velocity is differentiated from 1 Hz fixes; seen through the same differentiator the
+    # fit has no smoothing bias left (it was +0.10 % on every seed, against +-0.003 % of noise)
+    assert abs(ident["X_u"]["value"] - ident["X_u"]["file"]) <= 0.0005 * ident["X_u"]["file"]
+    _diagonal_intervals_hold_the_file(ident, ("X_u", "Y_v", "N_r"))
+    tol = {"X_u": 0.01, "Y_v": 0.01, "N_r": 0.01, "N_v": 0.05}
     assert set(tol) | {"Y_r"} <= set(ident)
     for name, t in tol.items():
         row = ident[name]
@@ -105,13 +153,19 @@ def test_minerva2_identification_on_short_trials(tmp_path: Path) -> None:
     ms = {t.name: run_trial(t, v, tmp_path, None, "inprocess", 2) for t in trials}
     results = identify_measurements(v, ms)
     ident = identified_table(v, results)
-    for name, t in (("X_|u|u", 0.03), ("Y_|v|v", 0.03), ("N_|r|r", 0.03), ("K_|p|p", 0.03), ("M_|q|q", 0.03)):
+    quadratic = ("X_|u|u", "Y_|v|v", "N_|r|r", "K_|p|p", "M_|q|q")
+    for name in quadratic:
         row = ident[name]
-        assert abs(row["value"] - row["file"]) <= t * row["file"], (name, row)
-    # the file's tiny linear yaw term: its force at the trial's yaw rate stays tiny
+        assert abs(row["value"] - row["file"]) <= 0.03 * row["file"], (name, row)
+    _diagonal_intervals_hold_the_file(ident, quadratic)
+    # the file's tiny linear yaw term: its force at the trial's yaw rate stays tiny, its interval
+    # holds the file's value and its width, as a force at that rate, is small too
     r = results["yaw_trial"]
     r_hold = abs(r.levels["hold"]["v"])
     assert abs(ident["N_r"]["value"] - ident["N_r"]["file"]) * r_hold <= 0.01 * r.plan.force_hold
+    lo, hi = ident["N_r"]["ci95"]
+    assert lo <= ident["N_r"]["file"] <= hi
+    assert 0.0 < 0.5 * (hi - lo) * r_hold <= 0.01 * r.plan.force_hold
     # zero coupled terms in the file: the identified ones predict < 2 % of the trial force
     assert abs(ident["Y_r"]["value"]) * r_hold <= 0.02 * results["sway_trial"].plan.force_hold
     v_hold = abs(results["sway_trial"].levels["hold"]["v"])

@@ -25,12 +25,12 @@ Per body axis (surge, sway, yaw), from one accelerate-hold-release-step record:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 from scipy.optimize import least_squares
-from scipy.signal import butter, sosfiltfilt
+from scipy.signal import butter, savgol_filter, sosfiltfilt
 
 from seafmu.components.dynamics import coriolis_force, restoring_coefficients, restoring_force
 from seafmu.components.vessel_spec import VesselSpec
@@ -42,9 +42,10 @@ from seafmu.identification.fitting import (
     nrmse,
     whiteness_test,
 )
-from seafmu.identification.timeseries import TSModel, baseline_model, fit_timeseries
+from seafmu.identification.timeseries import TSModel, baseline_model, fit_timeseries, simulate
 from seafmu.identification.trial import Run, Trial, make_trial
 from seafmu.testplan.design import AXES, TrialPlan
+from seafmu.testplan.intervals import NOISE_DRAWS, NOISE_SEED, fit_robust_ci, robust_ci
 from seafmu.testplan.measure import Measurement, noise_draws
 
 COUPLED_DRAWS = 300  # sensor-noise realisations behind a coupled term's interval
@@ -73,10 +74,74 @@ class AxisResult:
         return {k: float(v) for k, v in f.params.items() if k in ("d_L", "d_Q", "c")}
 
 
-def _segment(m: Measurement, t0: float, t1: float, name: str, force: bool) -> Run:
+def _segment(m: Measurement, t0: float, t1: float, name: str, force: np.ndarray | None) -> Run:
     sel = (m.t >= t0) & (m.t < t1)
     t = m.t[sel] - m.t[sel][0]
-    return Run(name=name, y=m.y[sel].copy(), t=t, u=m.tau[sel, m.plan.index].copy() if force else None)
+    return Run(name=name, y=m.y[sel].copy(), t=t, u=force[sel].copy() if force is not None else None)
+
+
+def coupling_force(vessel: VesselSpec, j: int, t: np.ndarray, nu: np.ndarray, eta: np.ndarray | None
+                   ) -> np.ndarray:
+    """Row j of the file's model less its own damping and inertia, from the measured motion
+    nu (..., n, dof), as each sample interval's mean (..., n): restoring g_j(eta), Coriolis
+    C(nu)nu_j, the off-diagonal damping D_ji nu_i and the coupled inertia M_ji nu_i' (its
+    interval mean is the velocity difference over the interval: integrated by the model it is
+    (M_ji / M_jj) nu_i on the output, so the held velocities' noise enters scaled by that small
+    ratio, not differentiated)."""
+    DL, DQ = vessel.D_L[j].copy(), vessel.D_Q[j].copy()
+    DL[j] = DQ[j] = 0.0
+    c = nu @ DL + (np.abs(nu) * nu) @ DQ
+    if vessel.coriolis != "none":
+        c = c + coriolis_force(vessel.M_RB + vessel.M_A, nu)[..., j]
+    if vessel.dof == 6 and vessel.restoring is not None and eta is not None:
+        rs = vessel.restoring
+        c = c + restoring_force(restoring_coefficients(rs.weight, rs.buoyancy, rs.r_g, rs.r_b),
+                                eta[:, 3], eta[:, 4])[:, j]
+    c[..., :-1] = 0.5 * (c[..., :-1] + c[..., 1:])  # the interval's mean, as the thrusters' force
+    Mo = np.asarray(vessel.M[j], dtype=float).copy()
+    Mo[j] = 0.0
+    c[..., :-1] += (np.diff(nu, axis=-2) @ Mo) / np.diff(t)
+    return c
+
+
+def _motion(m: Measurement) -> tuple[np.ndarray, np.ndarray | None]:
+    nu = np.where(np.isfinite(m.nu), m.nu, 0.0)
+    nu[:, m.plan.index] = m.y
+    eta = np.where(np.isfinite(m.eta), m.eta, 0.0) if m.eta is not None else None
+    return nu, eta
+
+
+def axis_force(m: Measurement, vessel: VesselSpec | None) -> np.ndarray:
+    """The force the 1-DOF model of axis j is driven by: the thrusters' (``force_held``, each sample
+    interval's mean) less what row j of the file's model puts on the axis from the other DOFs'
+    measured motion (``coupling_force``). Small forces, but correlated with the trial's
+    acceleration, so the fit reads them as inertia and damping: Minerva 2's net buoyancy (-30 N)
+    tilted by the roll its sway acceleration induces moved Y_|v|v by +0.55 % with true velocities;
+    the supply's M_62 v' and N_v v moved N_r by +0.2 %."""
+    j = m.plan.index
+    f = m.force_held()[:, j].copy()
+    if vessel is None:
+        return f
+    nu, eta = _motion(m)
+    return f - coupling_force(vessel, j, m.t, nu, eta)
+
+
+def noise_in_fit(m: Measurement, vessel: VesselSpec | None) -> tuple[np.ndarray, np.ndarray] | None:
+    """``NOISE_DRAWS`` realisations of the file's sensor noise as the fit meets it: on the output
+    (B, n) and on the force through ``coupling_force`` (B, n), from the same draws of every
+    velocity channel (the output is one of them). The angles' noise in the restoring term (AHRS,
+    0.2 deg on 30 N of net buoyancy) is left out. None where no noise model is known."""
+    j = m.plan.index
+    if m.plan.nu not in m.noise_model:
+        return None
+    names = vessel.nu_names if vessel is not None else [m.plan.nu]
+    nd = noise_draws(m.noise_model, names, m.t, NOISE_DRAWS, np.random.default_rng(NOISE_SEED))
+    jj = names.index(m.plan.nu)
+    if vessel is None:
+        return nd[:, :, jj], np.zeros_like(nd[:, :, jj])
+    nu, eta = _motion(m)
+    df = -(coupling_force(vessel, j, m.t, nu + nd, eta) - coupling_force(vessel, j, m.t, nu, eta))
+    return nd[:, :, jj], df
 
 
 def _baseline(tp: TrialPlan) -> str:
@@ -126,9 +191,10 @@ def identify_axis(m: Measurement, vessel: VesselSpec | None = None) -> AxisResul
         return res
 
     lead = 2.0  # s of rest before a segment: the fit sees the force start
-    decay = _segment(m, tp.t_release, tp.t_step, "release", False)
-    step = _segment(m, tp.t_step - lead, m.t[-1] + 1.0, "step", True)
-    record = _segment(m, tp.t_accelerate - lead, tp.t_step, "accelerate_hold_release", True)
+    force = axis_force(m, vessel)
+    decay = _segment(m, tp.t_release, tp.t_step, "release", None)
+    step = _segment(m, tp.t_step - lead, m.t[-1] + 1.0, "step", force)
+    record = _segment(m, tp.t_accelerate - lead, tp.t_step, "accelerate_hold_release", force)
     base = _baseline(tp)
     tr_decay = make_trial("decay", [decay], dof=tp.axis, baseline=base, constants=consts,
                           name=f"{tp.axis}_decay", provenance=PROVENANCE)
@@ -142,6 +208,13 @@ def identify_axis(m: Measurement, vessel: VesselSpec | None = None) -> AxisResul
     joint = baseline_model(tr_rec)
     joint = TSModel("first", dict(joint.values), [*joint.free, "m_a"], "force")
     res.fits["record"] = fit_timeseries(tr_rec, joint)
+    noise = noise_in_fit(m, vessel)
+    spec = m.noise_model.get(tp.nu, {})
+    if "derived" in spec and len(spec["derived"]["t"]) == len(m.t):
+        res.fits["record"] = derived_velocity_fit(res.fits["record"], m, force, lead, noise)
+    else:
+        sel = (m.t >= tp.t_accelerate - lead) & (m.t < tp.t_step)
+        _honest_intervals(res.fits["record"], m, sel, noise)
 
     # method one in numbers: T from the decay, u_ss and d from the step, m = d T
     d_dec = res.fits["decay"].params
@@ -158,6 +231,90 @@ def identify_axis(m: Measurement, vessel: VesselSpec | None = None) -> AxisResul
     mo["d_step"] = F / v_ss if v_ss != 0 else math.nan
     mo["m_method_one"] = mo["d_step"] * mo["T_decay"]
     return res
+
+
+def _honest_intervals(fit: FitResult, m: Measurement, sel: np.ndarray,
+                      noise: tuple[np.ndarray, np.ndarray] | None) -> None:
+    """Replace the fit's white-noise intervals by ``intervals.robust_ci``'s (the sensor noise as the
+    fit meets it, and the residuals' autocorrelation); the three standard errors go to
+    ``fit.extras["intervals"]`` for the report."""
+    draws = None
+    if noise is not None:
+        model, vals = fit.extras["model"], fit.extras["values"]
+        p, ic = fit.extras["split"].fit[0], fit.extras["initial_states"][0]
+        base = simulate(model, vals, p.t, p.u, ic, uniform=p.uniform)
+        dy, df = noise[0][:, sel], noise[1][:, sel]
+        # the output's noise less the model's response to the force's
+        draws = np.array([dy[b] - (simulate(model, vals, p.t, p.u + df[b], ic, uniform=p.uniform) - base)
+                          for b in range(len(dy))])
+    ci = fit_robust_ci(fit, draws, 1)
+    for q, row in ci.items():
+        fit.ci95[q] = (row["lo"], row["hi"])
+    fit.extras["intervals"] = ci
+
+
+def derived_velocity_fit(fit: FitResult, m: Measurement, force: np.ndarray, lead: float,
+                         noise: tuple[np.ndarray, np.ndarray] | None) -> FitResult:
+    """Refit a velocity differentiated from position fixes with the model seen through the same
+    differentiator: the model's velocity (the whole trial from rest, the measured force), integrated
+    to a position and Savitzky-Golay differentiated with the measurement's window, is compared with
+    the measured velocity on the accelerate-hold-release record.
+
+    A quadratic Savitzky-Golay slope over 53 s cannot follow the velocity's corners where the force
+    starts and stops (up to 0.2 m/s off for 25 s on either side of the supply's release); the
+    1-DOF fit read that smoothing as dynamics: X_u +0.10 % on every seed, against its +-0.003 %
+    of sensor noise. Through the same filter the model's smoothing error is the measurement's, so
+    the fit is unbiased; its residuals carry the filter's correlation, so the interval is
+    ``intervals.robust_ci`` (noise draws processed as the measurement, Newey-West). The step from
+    rest, after the record, is predicted (held out)."""
+    tp = m.plan
+    d = m.noise_model[tp.nu]["derived"]
+    w, dt = int(d["w"]), float(d["dt"])
+    model = fit.extras["model"]
+    free = list(model.free)
+    nfree = len(free)
+    i0 = int(np.searchsorted(m.t, tp.t_accelerate - lead))
+    i1 = int(np.searchsorted(m.t, tp.t_step))
+    t = m.t - m.t[0]
+
+    def velocity(theta: np.ndarray, f: np.ndarray = force) -> np.ndarray:
+        return np.asarray(simulate(model, model.at(theta[:nfree]), t, f, (float(theta[nfree]),)))
+
+    def seen(theta: np.ndarray, f: np.ndarray = force) -> np.ndarray:
+        v = velocity(theta, f)
+        pos = np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]) * np.diff(t))])
+        return np.asarray(savgol_filter(pos, w, 2, deriv=1, delta=dt))
+
+    theta0 = np.array([float(fit.extras["values"][q]) for q in free] + [0.0])
+    mass = float(fit.extras["values"]["M"])
+    vspan = max(float(np.max(np.abs(m.y))), 1e-9)
+    scale = np.array([max(abs(x), 1e-3 * mass) for x in theta0[:nfree]] + [1e-3 * vspan])
+    y = m.y[i0:i1]
+    sol = least_squares(lambda z: seen(theta0 + scale * z)[i0:i1] - y, np.zeros(len(theta0)),
+                        x_scale="jac", xtol=1e-10, ftol=1e-12)
+    theta = theta0 + scale * sol.x
+    yhat = seen(theta)
+    draws = None
+    if noise is not None:  # the output's noise less the model's response to the force's
+        draws = np.array([noise[0][b, i0:i1] - (seen(theta, force + noise[1][b]) - yhat)[i0:i1]
+                          for b in range(len(noise[0]))])
+    names = [*free, "x0"]
+    ci = robust_ci(names, theta, nfree, sol.jac / scale, [y - yhat[i0:i1]], draws, w)
+    vals = model.at(theta[:nfree])
+    j0 = int(np.searchsorted(m.t, tp.t_step - lead))
+    extras = {**fit.extras, "values": vals, "initial_states": [(float(theta[nfree]),)], "intervals": ci,
+              "velocity": velocity(theta),
+              "predictions": [
+                  {"run": "fit", "t": m.t[i0:i1] - m.t[i0], "y": y, "yhat": yhat[i0:i1], "u": None},
+                  {"run": "validation", "t": m.t[j0:] - m.t[j0], "y": m.y[j0:], "yhat": yhat[j0:],
+                   "u": None}],
+              "nfev": int(sol.nfev)}
+    return replace(fit, params={q: float(vals[q]) for q in free},
+                   ci95={q: (row["lo"], row["hi"]) for q, row in ci.items()},
+                   nrmse_fit=nrmse(y, yhat[i0:i1]), nrmse_validation=nrmse(m.y[j0:], yhat[j0:]),
+                   whiteness=whiteness_test(y - yhat[i0:i1]),
+                   method=f"output error through the measurement's differentiator (Savitzky-Golay, {w} "
+                          "samples, on the model's integrated velocity)", extras=extras)
 
 
 def _axpy(a: list[float], c: float, b: list[float]) -> list[float]:
@@ -302,7 +459,14 @@ def coupled_release_fit(m: Measurement, vessel: VesselSpec, start: dict[str, flo
     sol = least_squares(resid, np.zeros(len(p0)), xtol=1e-8, ftol=1e-10)
     p = p0 + scale * sol.x
     r = sol.fun
-    ci, corr, nonid = fit_statistics(names, p, sol.jac / scale, r)
+    _, corr, nonid = fit_statistics(names, p, sol.jac / scale, r)
+    # residuals in units of the stated sensor noise: unit white draws are that noise; per output
+    # channel (angle, rate) a run of its own for Newey-West
+    n = len(m.y)
+    runs = [-r[:n], -r[n:]] if use_rate else [-r]
+    unit = np.random.default_rng(NOISE_SEED).standard_normal((NOISE_DRAWS, r.size))
+    rows = robust_ci(names, p, len(start) + 1, sol.jac / scale, runs, unit, 1)
+    ci = {q: (row["lo"], row["hi"]) for q, row in rows.items()}
     x, w = model(p)
     keep = [*start, "m_a"]
     aic, bic = aic_bic(float(np.sum(r**2)), r.size, len(p))
@@ -314,7 +478,7 @@ def coupled_release_fit(m: Measurement, vessel: VesselSpec, start: dict[str, flo
         n_samples=len(m.t), method="coupled output error (the free DOFs' rows of the 6-DOF model)",
         extras={"predictions": [{"run": "fit", "t": sim.t, "yhat": x, "rate": w}],
                 "values": {**fixed, **dict(zip(names, (float(v) for v in p), strict=True)), "M": mass},
-                "uses_rate": use_rate, "free_dofs": [vessel.nu_names[i] for i in sim.b],
+                "uses_rate": use_rate, "free_dofs": [vessel.nu_names[i] for i in sim.b], "intervals": rows,
                 "nfev": sol.nfev})
 
 
@@ -362,7 +526,7 @@ def coupled_terms(results: dict[str, AxisResult], measurements: dict[str, Measur
         m = measurements[name]
         tp = r.plan
         j = tp.index
-        sel = (m.t >= tp.t_accelerate - 2.0) & (m.t <= tp.t_step)
+        sel = m.t <= tp.t_step  # from the first sample: the plant starts at rest
         t = m.t[sel]
         nu = np.where(np.isfinite(m.nu[sel]), m.nu[sel], 0.0)
         nu[:, j] = m.y[sel]

@@ -53,6 +53,27 @@ class Measurement:
     truth: dict[str, np.ndarray] = field(default_factory=dict)  # true states (simulation only)
     wall: float = 0.0
 
+    def force_held(self) -> np.ndarray:
+        """The thrusters' force as the fit's integrator holds it: on [t_i, t_i+1) the mean of the
+        logged force over that interval (``interval_mean``), so every interval carries its true
+        impulse. The force sampled at t_i and held instead lags a ramping force by half a sample
+        (1 s fixes on the supply vessel): X_u +0.10 %, m_a -0.4 % of M with true velocities."""
+        if self.t_log is None or self.tau_log is None:
+            return self.tau
+        return interval_mean(self.t_log, self.tau_log, self.t)
+
+
+def interval_mean(t_log: np.ndarray, f_log: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Mean of f_log (n_log, k; linear between log steps) over each [t_i, t_i+1); the last row is
+    the value at t[-1]."""
+    cum = np.concatenate([np.zeros((1, f_log.shape[1])),
+                          np.cumsum(0.5 * (f_log[1:] + f_log[:-1]) * np.diff(t_log)[:, None], axis=0)])
+    at = np.column_stack([np.interp(t, t_log, cum[:, k]) for k in range(f_log.shape[1])])
+    out = np.empty((len(t), f_log.shape[1]))
+    out[:-1] = np.diff(at, axis=0) / np.diff(t)[:, None]
+    out[-1] = np.array([np.interp(t[-1], t_log, f_log[:, k]) for k in range(f_log.shape[1])])
+    return out
+
 
 def run_trial(tp: TrialPlan, vessel: VesselSpec, folder: Path, hardware: str | None, mode: str,
               seed: int) -> Measurement:
