@@ -97,8 +97,14 @@ class _Simulator:
             tau, tau_mid = tau + f0, tau_mid + f0
         if thrust_gain is not None and self.thrust is not None and self.thrust_mid is not None:
             dB = (np.asarray(thrust_gain, dtype=float) - 1.0)[:, :, None] * self.B.T[None]  # (K, m, d)
-            tau = tau + np.einsum("slm,kmd->ksld", self.thrust, dB)
-            tau_mid = tau_mid + np.einsum("slm,kmd->ksld", self.thrust_mid, dB)
+
+            def gained(base: np.ndarray, T: np.ndarray) -> np.ndarray:
+                """base + T dB per parameter set: one batched (S L, m) @ (m, d) product (BLAS)."""
+                out = np.matmul(T.reshape(1, -1, T.shape[-1]), dB).reshape(K, *T.shape[:2], d)
+                out += base
+                return out
+
+            tau, tau_mid = gained(tau, self.thrust), gained(tau_mid, self.thrust_mid)
         if cur and vc is not None:
             vck = np.ascontiguousarray(vc, dtype=float)
             psi = np.ascontiguousarray(self.psi, dtype=float)
