@@ -547,7 +547,7 @@ SCREEN_RATIO = 1.02
 MANEUVER_REFERENCES = 2  # single-effect fits the pairs are screened from (lowest AIC first)
 # Evaluations of a part's own fit (started from the pair's values): a part alone is the worse model
 # wherever the pair is right, and its cost falls most in the first few steps.
-PART_NFEV = 10
+PART_NFEV = 6
 
 
 def _maneuver_members(trial: Trial, singles: list[Candidate]) -> tuple[list[Any], dict[int, Candidate]]:
@@ -584,9 +584,10 @@ def _maneuver_combinations(trial: Trial, base: FitResult, singles: list[Candidat
     """Pairs of maneuver extensions (two effects, or two located thrusters), screened cheaply and
     the promising ones fitted, warm started, and judged like any combination.
 
-    Screen (``maneuver.fit.screen_extensions``): from the single-effect fits (accepted ones first,
-    then lowest AIC; at most ``MANEUVER_REFERENCES``, each beating the baseline's AIC; else from the
-    baseline: a pair may explain what each part alone cannot), one Gauss-Newton step in the damping
+    Screen (``maneuver.fit.screen_extensions``): from the accepted single-effect fits (lowest AIC
+    first, at most ``MANEUVER_REFERENCES``), else from the single fit of lowest AIC if it beats the
+    baseline's (a part of a pair alone may do worse held out), else from the baseline (a pair may
+    explain what each part alone cannot), one Gauss-Newton step in the damping
     and the pair's parameters, simulated on the fitted and the held-out part. A pair is fitted only
     where its step beats the step of each of its parts from the same reference by ``SCREEN_RATIO``
     held out, beats every accepted single fit held out by the rule's ratio (the
@@ -606,9 +607,10 @@ def _maneuver_combinations(trial: Trial, base: FitResult, singles: list[Candidat
     # alone may be held back by the other part's absence (held out worse), yet its fit is near the
     # pair's
     ranked = sorted((c for c in singles if c.fit is not None and c.delta_aic <= rule.max_delta_aic),
-                    key=lambda c: (not c.accepted, c.fit.aic))  # type: ignore[union-attr]
+                    key=lambda c: c.fit.aic)  # type: ignore[union-attr]
+    chosen = [c for c in ranked if c.accepted][:MANEUVER_REFERENCES] or ranked[:1]
     refs: list[tuple[dict[str, float], list[int]]] = []  # (reference values, the members it has)
-    for c in ranked[:MANEUVER_REFERENCES]:
+    for c in chosen:
         refs.append((dict(c.fit.params), [i for i, s in single_of.items() if s is c]))  # type: ignore[union-attr]
     if not refs:
         refs.append((dict(base.params), []))
