@@ -21,9 +21,19 @@ from __future__ import annotations
 import math
 from typing import Any
 
+import numba
 import numpy as np
 
-from ._jit import kernel
+from . import _jit  # noqa: F401  (first: sets numba's cache folder and its content-keyed cache locator)
+
+
+def kernel(fn: Any) -> Any:
+    """``_jit.kernel`` that also lets the compiler fuse a * b + c into one instruction (numba's
+    fastmath "contract" flag alone: no reassociation, NaN and inf kept as they are). z W is about
+    two thirds of an RK4 step and fused, it runs about 1.4x faster (measured); the rounding then
+    differs from NumPy's matmul by about 1e-16 per product, which ``tests/test_kernels.py`` allows
+    (1e-11), where the plant's kernels must equal NumPy bit for bit."""
+    return numba.njit(cache=True, nogil=True, fastmath={"contract"})(fn)
 
 
 @kernel
