@@ -22,7 +22,8 @@ import pickle
 import signal
 import subprocess
 import sys
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Collection, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -207,6 +208,8 @@ def allocation(s: Series, path: Path) -> bool:
     return True
 
 
+# ((title, file) of each figure drawn, 'file: why' of each that failed)
+Drawn = tuple[list[tuple[str, str]], list[str]]
 # (file, title in the report, function): the report's figures, in its order
 FIGURES: tuple[tuple[str, str, Callable[[Series, Path], bool]], ...] = (
     ("trajectory.png", "Trajectory", trajectory),
@@ -216,11 +219,14 @@ FIGURES: tuple[tuple[str, str, Callable[[Series, Path], bool]], ...] = (
 )
 
 
-def draw_all(s: Series, out: Path) -> tuple[list[tuple[str, str]], list[str]]:
-    """Every figure that applies, in ``out``: ((title, file) drawn, 'file: why' of each failed)."""
+def draw_all(s: Series, out: Path, only: Collection[str] | None = None) -> Drawn:
+    """Every figure that applies (of ``only``, file names, if given), in ``out``: ((title, file)
+    drawn, 'file: why' of each that failed), in the report's order."""
     drawn: list[tuple[str, str]] = []
     failed: list[str] = []
     for name, title, fn in FIGURES:
+        if only is not None and name not in only:
+            continue
         try:
             if fn(s, out / name):
                 drawn.append((title, name))
@@ -230,11 +236,16 @@ def draw_all(s: Series, out: Path) -> tuple[list[tuple[str, str]], list[str]]:
 
 
 class Plotter:
-    """``with Plotter() as p: ... p.draw(series, out)`` — the figures drawn by a worker process
-    started on entry (so matplotlib is imported while the run goes), else in this process."""
+    """``with Plotter() as p: ... p.draw(series, out)`` — the figures drawn by worker processes
+    started on entry (so matplotlib is imported while the run goes), else in this process.
 
-    def __init__(self) -> None:
-        self._proc: subprocess.Popen[bytes] | None = None
+    Two workers by default: the run's process waits for its figures on an idle core, so the
+    figures are shared (round robin in the report's order: about half the drawing each).
+    """
+
+    def __init__(self, workers: int = 2) -> None:
+        self.workers = max(1, min(workers, len(FIGURES)))
+        self._procs: list[subprocess.Popen[bytes]] = []
 
     def __enter__(self) -> Plotter:
         self.start()
@@ -244,40 +255,60 @@ class Plotter:
         self.close()
 
     def start(self) -> None:
-        """Start the worker; without one (no interpreter path, no process), ``draw`` draws here."""
+        """Start the workers; without them (no interpreter path, no process), ``draw`` draws here."""
         if not sys.executable:
             return
-        # Started beside this seafmu (the folder holding the package): the worker runs the same
-        # code whatever the current folder; its own session, so a terminal's Ctrl-C stops the run
-        # (which still wants its figures), not the worker.
+        # Started beside this seafmu (the folder holding the package): the workers run the same
+        # code whatever the current folder; their own session, so a terminal's Ctrl-C stops the
+        # run (which still wants its figures), not them.
         root = Path(__file__).resolve().parents[1]
-        try:
-            self._proc = subprocess.Popen([sys.executable, "-m", "seafmu.plots"], cwd=root,
-                                          stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                          start_new_session=True)
-        except OSError:
-            self._proc = None
-
-    def draw(self, s: Series, out: Path) -> tuple[list[tuple[str, str]], list[str]]:
-        """Draw every figure into ``out``; returns when they are written (see ``draw_all``)."""
-        proc, self._proc = self._proc, None
-        if proc is not None:
-            # plain data (no seafmu class): the worker's module is __main__, not seafmu.plots
-            request = pickle.dumps({"name": s.name, "time": s.time, "signals": s.signals,
-                                    "out": str(Path(out).resolve())}, protocol=pickle.HIGHEST_PROTOCOL)
+        for _ in range(self.workers):
             try:
-                reply, _ = proc.communicate(request, timeout=REPLY_TIMEOUT_S)
-                answer = json.loads(reply.decode("utf-8").strip().splitlines()[-1])
-                return [tuple(d) for d in answer["drawn"]], list(answer["failed"])  # type: ignore[misc]
-            except (OSError, ValueError, IndexError, KeyError, TypeError, subprocess.TimeoutExpired):
-                _stop(proc)  # the worker failed: the figures are drawn here
-        return draw_all(s, out)
+                self._procs.append(subprocess.Popen([sys.executable, "-m", "seafmu.plots"], cwd=root,
+                                                    stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                                    start_new_session=True))
+            except OSError:
+                break
+
+    def draw(self, s: Series, out: Path) -> Drawn:
+        """Draw every figure into ``out``; returns when they are all written (see ``draw_all``)."""
+        procs, self._procs = self._procs, []
+        if not procs:
+            return draw_all(s, out)
+        names = [name for name, _, _ in FIGURES]
+        shares = [names[i::len(procs)] for i in range(len(procs))]
+        # plain data (no seafmu class): a worker's module is __main__, not seafmu.plots
+        data = {"name": s.name, "time": s.time, "signals": s.signals, "out": str(Path(out).resolve())}
+        with ThreadPoolExecutor(len(procs)) as pool:  # each worker is sent its share and answers
+            replies = list(pool.map(_ask, procs, [{**data, "only": share} for share in shares]))
+        drawn: list[tuple[str, str]] = []
+        failed: list[str] = []
+        for share, reply in zip(shares, replies, strict=True):
+            d, f = reply if reply is not None else draw_all(s, out, share)  # a failed worker's share: here
+            drawn += d
+            failed += f
+        order = {name: i for i, name in enumerate(names)}
+        drawn.sort(key=lambda d: order[d[1]])
+        failed.sort(key=lambda f: order.get(f.split(":", 1)[0], len(order)))
+        return drawn, failed
 
     def close(self) -> None:
-        """Stop a worker that was not used (the run failed before its figures)."""
-        proc, self._proc = self._proc, None
-        if proc is not None:
+        """Stop workers that were not used (the run failed before its figures)."""
+        procs, self._procs = self._procs, []
+        for proc in procs:
             _stop(proc)
+
+
+def _ask(proc: subprocess.Popen[bytes], request: dict[str, Any]) -> Drawn | None:
+    """A worker's answer to one request; None (the worker stopped) when it failed."""
+    try:
+        reply, _ = proc.communicate(pickle.dumps(request, protocol=pickle.HIGHEST_PROTOCOL),
+                                    timeout=REPLY_TIMEOUT_S)
+        answer = json.loads(reply.decode("utf-8").strip().splitlines()[-1])
+        return [(str(t), str(n)) for t, n in answer["drawn"]], [str(f) for f in answer["failed"]]
+    except (OSError, ValueError, IndexError, KeyError, TypeError, subprocess.TimeoutExpired):
+        _stop(proc)
+        return None
 
 
 def _stop(proc: subprocess.Popen[bytes]) -> None:
@@ -311,7 +342,7 @@ def serve() -> int:
     except EOFError:
         return 0
     series = Series(request["name"], request["time"], request["signals"])
-    drawn, failed = draw_all(series, Path(request["out"]))
+    drawn, failed = draw_all(series, Path(request["out"]), request.get("only"))
     sys.stdout.write(json.dumps({"drawn": drawn, "failed": failed}) + "\n")
     sys.stdout.flush()
     return 0

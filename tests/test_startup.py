@@ -110,7 +110,7 @@ def test_the_worker_draws_the_same_figures_as_this_process(tmp_path: Path) -> No
     there.mkdir()
     drawn_here, failed_here = plots.draw_all(s, here)
     with plots.Plotter() as p:
-        assert p._proc is not None  # a worker was started
+        assert len(p._procs) == 2  # the workers were started
         drawn_there, failed_there = p.draw(s, there)
     assert drawn_here == drawn_there and len(drawn_here) == len(plots.FIGURES)
     assert failed_here == failed_there == []
@@ -118,21 +118,23 @@ def test_the_worker_draws_the_same_figures_as_this_process(tmp_path: Path) -> No
         assert np.array_equal(_pixels(here / name), _pixels(there / name)), name
 
 
-def test_a_dead_worker_leaves_the_figures_to_this_process(tmp_path: Path) -> None:
+def test_a_dead_worker_leaves_its_figures_to_this_process(tmp_path: Path) -> None:
     s = _series()
-    p = plots.Plotter()
-    p._proc = subprocess.Popen([sys.executable, "-c", "import sys; sys.exit(3)"], stdin=subprocess.PIPE,
-                               stdout=subprocess.PIPE)
-    drawn, failed = p.draw(s, tmp_path)
-    assert len(drawn) == len(plots.FIGURES) and not failed
+    with plots.Plotter() as p:
+        dead = subprocess.Popen([sys.executable, "-c", "import sys; sys.exit(3)"], stdin=subprocess.PIPE,
+                                stdout=subprocess.PIPE)
+        p._procs[0], alive = dead, p._procs[0]
+        plots._stop(alive)
+        drawn, failed = p.draw(s, tmp_path)
+    assert [name for _, name in drawn] == [name for name, _, _ in plots.FIGURES] and not failed
     assert all((tmp_path / name).is_file() for _, name in drawn)
 
 
 def test_an_unused_worker_is_stopped() -> None:
     with plots.Plotter() as p:
-        proc = p._proc
-        assert proc is not None and proc.poll() is None
-    assert proc.poll() is not None
+        procs = list(p._procs)
+        assert procs and all(proc.poll() is None for proc in procs)
+    assert all(proc.poll() is not None for proc in procs)
 
 
 def test_a_figure_that_fails_is_reported_not_raised(tmp_path: Path) -> None:
@@ -198,3 +200,14 @@ def test_csv_rows_are_written_as_savetxt_writes_them() -> None:
         buf = io.StringIO()
         np.savetxt(buf, x, delimiter=",", fmt=CSV_FORMAT)
         assert format_rows(x) == buf.getvalue()
+
+
+def test_a_figure_failing_in_a_worker_is_reported_as_here(tmp_path: Path) -> None:
+    s = _series()
+    s.signals["plant.north"] = s.signals["plant.north"][:10]
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    with plots.Plotter() as p:
+        there = p.draw(s, tmp_path / "a")
+    assert there == plots.draw_all(s, tmp_path / "b")
+    assert there[1] and there[1][0].startswith("trajectory.png:")
