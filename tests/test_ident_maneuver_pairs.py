@@ -30,6 +30,7 @@ from seafmu.identification.effects import get
 from seafmu.identification.effects.base import Combined
 from seafmu.identification.effects.thruster_loss import thruster_of
 from seafmu.identification.maneuver import add_sensor_noise, simulate_maneuver, write_maneuver_csv
+from seafmu.identification.report import write_diagnosis_report
 from seafmu.identification.trial import Trial, csv_trial
 
 ETA_TOL = 0.05  # efficiency, absolute (the issue's +-5 points)
@@ -107,6 +108,10 @@ def test_two_lost_thrusters_are_both_located(tmp_path: Path, vessel: str, seed: 
         assert f"thruster {k} delivers" in d.evidence.lower()
     updates = d.to_json()["cause"]["members"]
     assert {thruster_of(next(iter(u["params"]))) + 1 for u in updates} == set(truth)  # type: ignore[operator]
+    # the report names each located thruster, in the cause and in the candidates' table
+    text = write_diagnosis_report(d, tmp_path / "report").read_text()
+    for k in truth:
+        assert f"`thruster_loss` (eta_T[{k}] = " in text and f"| thruster_loss (eta_T[{k}])" in text
 
 
 # (vessel, seed, duration s, dt s): one thruster (drawn from the seed) at 60 % in a 0.1 m/s current

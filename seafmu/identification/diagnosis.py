@@ -93,6 +93,15 @@ class Candidate:
         """Each effect with its parameters (sorted): what a combination's sub-models are matched by."""
         return [(e, tuple(sorted(g))) for e, g in zip(self.effects, self.member_groups(), strict=True)]
 
+    def label(self) -> str:
+        """The name with each located effect's parameters (which thruster): ``thruster_loss
+        (eta_T[3])+thruster_loss (eta_T[6])``."""
+        out = []
+        for e, g in self.members():
+            located = getattr(effect_objects.get(e), "maneuver_variants", None) is not None and g
+            out.append(f"{e} ({', '.join(g)})" if located else e)
+        return "+".join(out)
+
     def effect_params(self) -> dict[str, float]:
         f = self.fit
         if f is None:
@@ -101,7 +110,7 @@ class Candidate:
 
     def row(self) -> dict[str, Any]:
         f = self.fit
-        return {"effect": self.effect, "effects": list(self.effects),
+        return {"effect": self.effect, "effects": list(self.effects), "label": self.label(),
                 "nrmse_validation": _num(f.nrmse_validation) if f else None,
                 "nrmse_fit": _num(f.nrmse_fit) if f else None,
                 "delta_aic": _num(self.delta_aic), "ratio": _num(self.ratio),

@@ -256,7 +256,7 @@ def plot_ranking(diag: Diagnosis, path: Path) -> None:
     if not rk:
         return
     fig, ax = plt.subplots(figsize=(8, 0.45 * len(rk) + 1.4))
-    names = [c.effect for c in rk][::-1]
+    names = [c.label() for c in rk][::-1]  # two located thrusters: two bars
     vals = [c.fit.nrmse_validation for c in rk][::-1]  # type: ignore[union-attr]
     finite = [v for v in vals if math.isfinite(v)] + [diag.baseline.nrmse_validation]
     cap = 1.5 * max(v for v in finite if math.isfinite(v))
@@ -361,8 +361,9 @@ def write_diagnosis_report(diag: Diagnosis, out: Path) -> Path:
                   f"{_g(g['nrmse_validation_after'])} "
                   f"(ratio {_g(g['validation_nrmse_ratio'])}), ΔAIC {_g(g['delta_aic'])}.", ""]
         if len(diag.effects) > 1:
-            lines += ["Effects of the cause, largest contribution first: " +
-                      ", ".join(f"`{e}`" for e in diag.effects) + ".", ""]
+            listed = [f"`{m['effect']}` (" + ", ".join(f"{k} = {_g(v)}" for k, v in m["params"].items()) + ")"
+                      for m in j["cause"]["members"]]
+            lines += ["Effects of the cause, largest contribution first: " + ", ".join(listed) + ".", ""]
     lines += alternatives_lines(diag)
     figs = _figures(trial, diag.baseline, ext, out, "+".join(diag.effects) or effect)
     corr: dict[str, float] = {}
@@ -380,11 +381,11 @@ def write_diagnosis_report(diag: Diagnosis, out: Path) -> Path:
               "| effect | held-out NRMSE | ratio | ΔAIC | significant | verdict |",
               "|---|---|---|---|---|---|"]
     for c in diag.ranking():
-        lines.append(f"| {c.effect} | {_g(c.fit.nrmse_validation)} | {_g(c.ratio)} | {_g(c.delta_aic)} | "  # type: ignore[union-attr]
+        lines.append(f"| {c.label()} | {_g(c.fit.nrmse_validation)} | {_g(c.ratio)} | {_g(c.delta_aic)} | "  # type: ignore[union-attr]
                      f"{'yes' if c.significant else 'no'} | {c.reason} |")
     for c in diag.candidates:
         if c.fit is None:
-            lines.append(f"| {c.effect} | – | – | – | – | {c.reason} |")
+            lines.append(f"| {c.label()} | – | – | – | – | {c.reason} |")
     lines.append("")
     if diag.skipped:
         lines += ["Not applicable to this trial: " +
@@ -395,7 +396,7 @@ def write_diagnosis_report(diag: Diagnosis, out: Path) -> Path:
               f"ΔAIC ≤ {r.max_delta_aic:g}, 95 % CI of the effect parameter excludes its no-effect value; "
               "best = lowest held-out NRMSE (within 1 %: lowest AIC).", ""]
     if diag.cause and diag.cause.fit:
-        added = " + ".join(f"`{e}`: {CATALOGUE[e].meaning}" for e in diag.effects)
+        added = " + ".join(f"`{e}`: {CATALOGUE[e].meaning}" for e in dict.fromkeys(diag.effects))
         lines += [f"## 3. Extended model (baseline + {added})", ""]
         lines += [*fit_table(diag.cause.fit, trial), ""]
     lines += ["## Figures", ""] + [f"![{f.stem}]({f.name})" for f in figs] + [""]
@@ -476,7 +477,7 @@ def summary_lines(obj: Identification | Diagnosis) -> list[str]:
     for a in d.alternatives[1:]:
         if a.weight < 0.01:
             continue
-        lines.append(f"  also credible: {a.candidate.effect} (Akaike weight {a.weight:.3f}, held-out ratio "
+        lines.append(f"  also credible: {a.candidate.label()} (Akaike weight {a.weight:.3f}, held-out ratio "
                      f"{_g(a.candidate.ratio)}, dAIC {_g(a.delta_aic)} from the best)")
         if a.experiment:
             lines.append(f"    to tell them apart: {a.experiment['text']}")
