@@ -145,8 +145,8 @@ def _plot_distributions(frame: Any, cols: list[str], bounds: Bounds, path: Path)
         v = v[np.isfinite(v)]
         name = col.split(": ", 1)[1]
         if v.size:  # histogram and ECDF on one axis, both as fractions of the cases
-            ax.hist(v, bins=min(30, max(5, v.size // 3)), weights=np.full(v.size, 1 / v.size), color="C0",
-                    alpha=0.6)
+            counts, edges = np.histogram(v, bins=min(30, max(5, v.size // 3)))
+            ax.stairs(counts / v.size, edges, fill=True, color="C0", alpha=0.6)  # one patch, not one per bar
             xs = np.sort(v)
             ax.step(xs, np.arange(1, xs.size + 1) / xs.size, where="post", color="k", lw=1)
             ax.set_ylim(0, 1.02)

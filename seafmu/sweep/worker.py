@@ -62,7 +62,7 @@ def run_case(task: dict[str, Any]) -> dict[str, Any]:
     from seafmu.results import evaluate_checks
     from seafmu.scenario import ScenarioError, load_scenario, parse_override
 
-    t0, c0 = time.perf_counter(), time.process_time()
+    started, t0, c0 = time.time(), time.perf_counter(), time.process_time()
     row: dict[str, Any] = {"case": task["case"], "key": task["key"], "seed": task["seed"],
                            **task["inputs"], "status": "error", "error": "",
                            "worker": f"{socket.gethostname()}:{os.getpid()}"}
@@ -71,11 +71,13 @@ def run_case(task: dict[str, Any]) -> dict[str, Any]:
         sc = task.get("resolved")  # validated by the study already (a small study), else validated here
         if sc is None:
             sc = load_scenario(task["scenario"], [parse_override(o) for o in task["overrides"]], task["seed"])
+        t_run = time.perf_counter()
         try:
             result = run(sc, mode="fmu", progress=False)
         except SimulationError as exc:
             result = exc.partial
             row["error"] = " ".join(str(exc).split())
+        row["run_time_s"] = time.perf_counter() - t_run  # the run itself: FMUs instantiated, loop, freed
     except (ScenarioError, SimulationError, VesselFileError, OSError, ValueError) as exc:
         row["error"] = " ".join(str(exc).split())
     except Exception as exc:  # anything else is still this case's failure, not the study's
@@ -94,7 +96,7 @@ def run_case(task: dict[str, Any]) -> dict[str, Any]:
                 row[METRIC + m["name"]] = math.nan
                 row["error"] = row["error"] or f"metric {m['name']}: {exc}"
         row["simulated_s"] = float(result.t_end or 0.0)
-        row["loop_time_s"] = float(result.wall_time)  # the master loop alone: a bare run's time
+        row["loop_time_s"] = float(result.wall_time)  # the master loop alone
         row["realtime_factor"] = float(result.realtime_factor)
         if task["keep"]:
             row["_series"] = {"time": np.asarray(result.time),
@@ -102,5 +104,6 @@ def run_case(task: dict[str, Any]) -> dict[str, Any]:
     if not row["error"]:
         row["status"] = "pass" if checks_ok else "fail"
     row["wall_time_s"] = time.perf_counter() - t0
+    row["started"], row["finished"] = started, started + row["wall_time_s"]  # Unix time: the study's timeline
     row["cpu_time_s"] = time.process_time() - c0  # this process's CPU: what the case costs on a shared host
     return row
