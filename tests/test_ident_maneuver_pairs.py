@@ -2,11 +2,11 @@
 
 The logs are flown by seafmu's plant (``simulate_maneuver``: multisine excitation through the
 thrusters, the vessel file's sensor noise added, one thrust column per thruster) with two effects
-in the plant at once: two thrusters lost, a lost thruster in a current, a lost thruster with a
-buoyancy error (a constant heave force). Which thruster is lost is drawn from the seed, not
-chosen by hand. The diagnosis must name both (``cause.effects``, each lost thruster located), with
-the values within the stated tolerances, and nothing else; a clean log stays silent, and a log
-with one effect still gives exactly one.
+in the plant at once: two thrusters lost, a lost thruster in a current, a buoyancy error (a
+constant heave force) with a lost thruster or with a current. Which thruster is lost is drawn
+from the seed, not chosen by hand. The diagnosis must name both (``cause.effects``, each lost
+thruster located), with the values within the stated tolerances, and nothing else; a clean log
+stays silent, and a log with one effect still gives exactly one.
 
 What a maneuver pair can be is decided by the effects (``effects/*.py``): ``current``,
 ``constant_force`` and ``thruster_loss`` (whose variants, one per thruster, may combine: two
@@ -136,20 +136,48 @@ def test_lost_thruster_in_a_current(tmp_path: Path, vessel: str, seed: int, dura
     assert towards == pytest.approx(math.degrees(direction), abs=DIRECTION_TOL)
 
 
-def test_lost_thruster_and_a_buoyancy_error(tmp_path: Path) -> None:
-    """Minerva 2 with 100 N more buoyancy than its file says and one thruster at 60 %: a constant
-    heave force (upwards, z down) and the thruster, both named."""
+@pytest.mark.parametrize(("seed", "other"), [(6, "thruster_loss"), (13, "current")])
+def test_buoyancy_error_with_a_lost_thruster_or_a_current(tmp_path: Path, seed: int, other: str) -> None:
+    """Minerva 2 with 100 N more buoyancy than its file says (a constant heave force, upwards: z
+    down) and either one thruster at 60 % or a 0.1 m/s current: both named."""
     m2 = load_vessel("minerva2")
     assert m2.restoring is not None
     truth = dataclasses.replace(m2, restoring=dataclasses.replace(m2.restoring,
                                                                   buoyancy=m2.restoring.buoyancy + 100.0))
-    seed = 6
     lost = int(np.random.default_rng(seed).integers(m2.thrusters.count)) + 1
-    d = diagnose(_log(tmp_path, "minerva2", seed, {f"thruster_efficiency_{lost}": 0.6}, 120.0, 0.05, truth))
-    _report(d, f"thruster {lost} at 0.6, buoyancy +100 N")
-    _check_pair(d, ["constant_force", "thruster_loss"])
-    assert _lost(d) == {lost: pytest.approx(0.6, abs=ETA_TOL)}
+    plant = ({f"thruster_efficiency_{lost}": 0.6} if other == "thruster_loss"
+             else {"current_speed": 0.1, "current_direction": 0.8})
+    d = diagnose(_log(tmp_path, "minerva2", seed, plant, 120.0, 0.05, truth))
+    _report(d, f"{plant}, buoyancy +100 N")
+    _check_pair(d, ["constant_force", other])
     assert d.extended.params["F_0[Z]"] == pytest.approx(-100.0, rel=FORCE_TOL)
+    if other == "thruster_loss":
+        assert _lost(d) == {lost: pytest.approx(0.6, abs=ETA_TOL)}
+    else:
+        p = d.extended.params
+        assert p["v_c_north"] == pytest.approx(0.1 * math.cos(0.8), abs=CURRENT_TOL)
+        assert p["v_c_east"] == pytest.approx(0.1 * math.sin(0.8), abs=CURRENT_TOL)
+
+
+def test_lost_thruster_with_changed_damping_names_the_thruster_and_fits_the_damping(tmp_path: Path) -> None:
+    """A damping change is not a catalogue effect of a maneuver log: every fit estimates the damping
+    diagonals. Minerva 2 with 50 % more yaw and 30 % more surge quadratic damping than its file and
+    one thruster at 60 %: the thruster alone is named, and the extended fit's damping is the
+    changed one."""
+    m2 = load_vessel("minerva2")
+    DQ = np.array(m2.D_Q, dtype=float)
+    DQ[0, 0] *= 1.3
+    DQ[5, 5] *= 1.5
+    seed = 14
+    lost = int(np.random.default_rng(seed).integers(m2.thrusters.count)) + 1
+    d = diagnose(_log(tmp_path, "minerva2", seed, {f"thruster_efficiency_{lost}": 0.6}, 120.0, 0.05,
+                      dataclasses.replace(m2, D_Q=DQ)))
+    _report(d, f"thruster {lost} at 0.6, D_Q[0,0] x1.3, D_Q[5,5] x1.5")
+    assert d.effects == ["thruster_loss"], d.evidence
+    assert _lost(d) == {lost: pytest.approx(0.6, abs=ETA_TOL)}
+    p = d.extended.params
+    assert p["D_Q[0,0]"] == pytest.approx(DQ[0, 0], rel=0.1)
+    assert p["D_Q[5,5]"] == pytest.approx(DQ[5, 5], rel=0.1)
 
 
 @pytest.mark.parametrize(("vessel", "seed", "duration", "dt"), [("minerva2", 7, 120.0, 0.05),
