@@ -7,10 +7,12 @@ from __future__ import annotations
 import copy
 import hashlib
 from collections.abc import Callable
+from contextlib import AbstractContextManager
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
-from threadpoolctl import threadpool_limits
+from threadpoolctl import ThreadpoolController
 
 from seafmu.components.vessel_spec import NU_NAMES, VesselSpec
 from seafmu.identification import arrowlm, fitting
@@ -25,6 +27,16 @@ from seafmu.identification.maneuver.terms import (
     maneuver_effect,
 )
 from seafmu.identification.trial import TrialError
+
+_BLAS: list[ThreadpoolController] = []  # made once: finding the loaded libraries costs ~1-6 ms a time
+
+
+def _one_blas_thread() -> AbstractContextManager[Any]:
+    """A context in which BLAS runs single-threaded (``threadpoolctl``; the libraries looked up
+    once per process, entering the context then costs microseconds)."""
+    if not _BLAS:
+        _BLAS.append(ThreadpoolController())
+    return _BLAS[0].limit(limits=1, user_api="blas")
 
 
 @dataclass
@@ -178,7 +190,7 @@ def _ls_joint(prep: _Prepared, rows: np.ndarray, g: np.ndarray, damping: str) ->
 def _run_ls(prep: _Prepared, rows: np.ndarray, vessel: VesselSpec, plant: dict[str, np.ndarray],
             coriolis: str, damping: str, warnings: list[str]) -> _LSResult:
     """The equation-error fit in the requested form, BLAS single-threaded (``_output_error``)."""
-    with threadpool_limits(limits=1, user_api="blas"):
+    with _one_blas_thread():
         return _run_ls_form(prep, rows, vessel, plant, coriolis, damping, warnings)
 
 
@@ -244,7 +256,7 @@ def _output_error(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | None, 
     """
     # BLAS single-threaded: its matrices here are small (a few hundred columns at most), and threads
     # contending on a busy 2-core machine made a fit 2-5x slower (measured)
-    with threadpool_limits(limits=1, user_api="blas"):
+    with _one_blas_thread():
         return _output_error_located(vessel, prep, setup, ls, plant, added_mass, base, max_nfev, warnings,
                                      effect, start)
 
