@@ -114,6 +114,15 @@ def kernel_floor(steps: int = 5, repeat: int = 2000) -> float:
     return min(times) * 1e6
 
 
+def _clock_cost(n: int = 20000) -> float:
+    """us per reading of time.perf_counter (the thread CPU clock with --clock cpu)."""
+    clock = time.perf_counter
+    t = WALL()
+    for _ in range(n):
+        clock()
+    return (WALL() - t) / n * 1e6
+
+
 def _met(ok: bool) -> str:
     return "met" if ok else "NOT met"
 
@@ -150,6 +159,11 @@ def main() -> None:
         print(f"start-up, fresh process, imports + 2 s of {sc.name} in-process: kernels compiled "
               f"(empty cache) {cold:.2f} s, cached {cached:.2f} s (imports {imports:.2f} s before)")
         print(f"seafmu run {sc.name} end to end, cached: {e2e:.2f} s (goal < 3 s: {_met(e2e < 3.0)})")
+    if args.clock == "cpu":
+        c = min(_clock_cost() for _ in range(5))
+        print(f"cpu clock: one reading costs {c:.2f} us here (a system call); the master reads it twice "
+              f"per unit step, so each figure below includes about {c:.1f} us per unit and {8 * c:.1f} per "
+              "master step of it")
     print(f"{'':<24}{'FMUs (fmpy)':>14}{'in-process':>14}{'ratio':>8}")
     print(f"{'wall time [s]':<24}{fmu.wall_time:>14.3f}{inproc.wall_time:>14.3f}"
           f"{fmu.wall_time / inproc.wall_time:>8.2f}")
