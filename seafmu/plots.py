@@ -239,11 +239,14 @@ class Plotter:
     """``with Plotter() as p: ... p.draw(series, out)`` — the figures drawn by worker processes
     started on entry (so matplotlib is imported while the run goes), else in this process.
 
-    Two workers by default: the run's process waits for its figures on an idle core, so the
-    figures are shared (round robin in the report's order: about half the drawing each).
+    ``workers`` share the figures (round robin in the report's order). By default one worker
+    per core beyond the run's own, at most two: on two cores, a second worker importing
+    matplotlib would take CPU from the simulation, and cost more than it saves when drawing.
     """
 
-    def __init__(self, workers: int = 2) -> None:
+    def __init__(self, workers: int | None = None) -> None:
+        if workers is None:
+            workers = min(2, len(os.sched_getaffinity(0)) - 1)
         self.workers = max(1, min(workers, len(FIGURES)))
         self._procs: list[subprocess.Popen[bytes]] = []
 

@@ -109,7 +109,7 @@ def test_the_worker_draws_the_same_figures_as_this_process(tmp_path: Path) -> No
     here.mkdir()
     there.mkdir()
     drawn_here, failed_here = plots.draw_all(s, here)
-    with plots.Plotter() as p:
+    with plots.Plotter(workers=2) as p:
         assert len(p._procs) == 2  # the workers were started
         drawn_there, failed_there = p.draw(s, there)
     assert drawn_here == drawn_there and len(drawn_here) == len(plots.FIGURES)
@@ -120,7 +120,7 @@ def test_the_worker_draws_the_same_figures_as_this_process(tmp_path: Path) -> No
 
 def test_a_dead_worker_leaves_its_figures_to_this_process(tmp_path: Path) -> None:
     s = _series()
-    with plots.Plotter() as p:
+    with plots.Plotter(workers=2) as p:
         dead = subprocess.Popen([sys.executable, "-c", "import sys; sys.exit(3)"], stdin=subprocess.PIPE,
                                 stdout=subprocess.PIPE)
         p._procs[0], alive = dead, p._procs[0]
@@ -207,7 +207,7 @@ def test_a_figure_failing_in_a_worker_is_reported_as_here(tmp_path: Path) -> Non
     s.signals["plant.north"] = s.signals["plant.north"][:10]
     (tmp_path / "a").mkdir()
     (tmp_path / "b").mkdir()
-    with plots.Plotter() as p:
+    with plots.Plotter(workers=2) as p:
         there = p.draw(s, tmp_path / "a")
     assert there == plots.draw_all(s, tmp_path / "b")
     assert there[1] and there[1][0].startswith("trajectory.png:")
