@@ -211,18 +211,7 @@ class ObserverBlock(Block):
             )
             self._sensors.append((inp.at(f"meas_{c}" for c in s.channels), inp[f"{s.name}_count"], ch))
         self._tau_in = inp.at(f"tau_alloc_{t}" for t in vessel.tau_names)
-        # the same for the compiled step (kernels/ekf.step): one padded row per sensor
-        W = max((len(ch.idx) for _, _, ch in self._sensors), default=0)
-        self._sens = np.zeros((len(self._sensors), 3 + 3 * W), dtype=np.int64)
-        self._sens_var = np.ones((len(self._sensors), W))
-        for i, (meas, count, ch) in enumerate(self._sensors):
-            m = len(ch.idx)
-            row = self._sens[i]
-            row[:3] = count, m, int(ch.pos_fix) | 2 * int(ch.wave) | 4 * int(ch.has_eta)
-            row[3 : 3 + m] = np.arange(len(inp))[meas]
-            row[3 + W : 3 + W + m] = ch.idx
-            row[3 + 2 * W : 3 + 2 * W + m] = ch.angle
-            self._sens_var[i, :m] = ch.var
+        self._sens, self._sens_var = self._sensor_table()
         self._tau_idx = np.arange(len(inp))[self._tau_in].astype(np.int64)
         o = self.out
         self._n_out = len(o)
@@ -251,6 +240,24 @@ class ObserverBlock(Block):
         self._consecutive = 0  # consecutive rejected position fixes
         self._since_fix = 0.0  # s since the last accepted position fix
         self._apply_params()
+
+    def _sensor_table(self) -> tuple[np.ndarray, np.ndarray]:
+        """The sensors for the compiled step (``kernels/ekf.step``): one row per sensor padded to the
+        widest (count input, channels, flags, measurement inputs, state indices, angle flags), and
+        the noise variances."""
+        W = max((len(ch.idx) for _, _, ch in self._sensors), default=0)
+        sens = np.zeros((len(self._sensors), 3 + 3 * W), dtype=np.int64)
+        var = np.ones((len(self._sensors), W))
+        pos = np.arange(len(self.inp))
+        for i, (meas, count, ch) in enumerate(self._sensors):
+            m = len(ch.idx)
+            row = sens[i]
+            row[:3] = count, m, int(ch.pos_fix) | 2 * int(ch.wave) | 4 * int(ch.has_eta)
+            row[3 : 3 + m] = pos[meas]
+            row[3 + W : 3 + W + m] = ch.idx
+            row[3 + 2 * W : 3 + 2 * W + m] = ch.angle
+            var[i, :m] = ch.var
+        return sens, var
 
     def _wave_p0(self) -> np.ndarray:
         """Stationary covariance of the wave model: var xi = q^2 / (4 lambda w^3), var zeta = w^2 var xi."""

@@ -437,6 +437,8 @@ def step(
     gate rejected, and returns ``(i << 2) | flags`` (i = number of sensors when all were done;
     flags POS_ACCEPTED, REJECTED); -1 for a non-finite input (nothing changed).
     """
+    # Long because it is the observer's whole step (check, prediction, the sensors' loop, the
+    # outputs) in one call: the point is to leave nothing of it to Python.
     for i in range(u.shape[0]):
         if not math.isfinite(u[i]):
             return -1
