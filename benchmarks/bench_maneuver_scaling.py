@@ -17,19 +17,28 @@ Issue 13 (compiled simulator): each size also runs with the former NumPy simulat
 (``--numpy-sim`` in the child: the batched RK4 of before, NumPy calls on (K, S, ...) arrays per
 step), interleaved with the compiled one, each child fitting ``--repeat`` times; the table gives the
 first fit (compiled: includes loading the cached kernels) and the best, and the ratio of the best
-output-error fits NumPy / compiled (goal: >= 5 at 10 000 rows). ``--no-compare`` skips it.
+output-error fits NumPy / compiled. That swap keeps today's optimiser, LS and BLAS settings, so it
+isolates the simulator. The goal ("a 10 000-sample output-error fit at least 5x faster than today")
+is measured against the code as it was: ``--reference COMMIT`` (default: the last commit before the
+simulator was compiled) is exported with ``git archive`` and the same log fitted by it in a child
+(its package first on PYTHONPATH), as it shipped (BLAS threads as the library sets them) and with
+single-threaded BLAS (``OPENBLAS_NUM_THREADS=1``, as today's fit runs: the ratio of the code alone).
+``--no-compare`` skips both comparisons.
 """
 
 from __future__ import annotations
 
 import argparse
+import io
 import itertools
 import json
 import math
+import os
 import platform
 import resource
 import subprocess
 import sys
+import tarfile
 import tempfile
 import time
 from pathlib import Path
@@ -107,6 +116,50 @@ def prefix(src: Path, rows: int, dst: Path) -> Path:
     return dst
 
 
+# The last commit whose output-error fit ran the NumPy simulator: issue 13's "today".
+REFERENCE = "c9989e6^"
+
+
+def reference_tree(commit: str, folder: Path) -> Path | None:
+    """``commit``'s seafmu/ and components/ exported into ``folder`` (git archive) and laid out as
+    installed (components/ as seafmu.components); None (and why, printed) when that fails."""
+    root = Path(__file__).resolve().parent.parent
+    try:
+        tar = subprocess.run(["git", "-C", str(root), "archive", commit, "seafmu", "components"],
+                             capture_output=True, check=True).stdout
+    except (OSError, subprocess.CalledProcessError) as exc:
+        print(f"# reference {commit}: cannot export it ({exc}); comparison skipped")
+        return None
+    with tarfile.open(fileobj=io.BytesIO(tar)) as tf:
+        tf.extractall(folder, filter="data")
+    (folder / "seafmu" / "components").symlink_to(folder / "components", target_is_directory=True)
+    return folder
+
+
+def _child(path: Path, vessel: str, repeat: int, numpy_sim: bool = False,
+           env: dict[str, str] | None = None) -> dict:
+    cmd = [sys.executable, __file__, "--child", str(path), vessel, "--method", "output_error",
+           "--repeat", str(repeat)] + (["--numpy-sim"] if numpy_sim else [])
+    proc = subprocess.run(cmd, capture_output=True, text=True, check=True, env=env)
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def _compare_reference(path: Path, vessel: str, repeat: int, ref: Path) -> dict[str, dict]:
+    """Best output-error fits by the reference commit (as shipped; single-threaded BLAS) and by this
+    code, children interleaved twice."""
+    envs = {"reference": {**os.environ, "PYTHONPATH": str(ref)},
+            "reference_1blas": {**os.environ, "PYTHONPATH": str(ref), "OPENBLAS_NUM_THREADS": "1",
+                                "OMP_NUM_THREADS": "1"},
+            "compiled": None}
+    best: dict[str, dict] = {}
+    for _ in range(2):
+        for name, env in envs.items():
+            r = _child(path, vessel, repeat, env=env)
+            if name not in best or r["output_error_best_s"] < best[name]["output_error_best_s"]:
+                best[name] = r
+    return best
+
+
 def _compare(path: Path, vessel: str, repeat: int) -> tuple[dict, dict]:
     """Best output-error fits with the NumPy and the compiled simulator, children interleaved twice."""
     best: dict[bool, dict] = {}
@@ -134,6 +187,8 @@ def main() -> None:
     ap.add_argument("--method", choices=("both", "ls", "output_error"), default="both")
     ap.add_argument("--repeat", type=int, default=3, help="fits per child for the comparison (best counts)")
     ap.add_argument("--no-compare", action="store_true", help="skip the NumPy-simulator comparison")
+    ap.add_argument("--reference", default=REFERENCE,
+                    help="the commit whose fit is 'today' (issue 13; default: before the compiled simulator)")
     ap.add_argument("--numpy-sim", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--child", nargs=2, metavar=("CSV", "VESSEL"), help=argparse.SUPPRESS)
     args = ap.parse_args()
@@ -150,6 +205,8 @@ def main() -> None:
         print(f"# log of {sizes[-1]} rows made by the plant in {time.perf_counter() - t0:.1f} s")
         results = []
         compare = []
+        against = []
+        ref = None if args.no_compare else reference_tree(args.reference, folder / "reference")
         for n in sizes:
             path = prefix(full, n, folder / f"log_{n}.csv")
             proc = subprocess.run([sys.executable, __file__, "--child", str(path), args.vessel,
@@ -160,6 +217,8 @@ def main() -> None:
             results.append(json.loads(proc.stdout.strip().splitlines()[-1]))
             if not args.no_compare:
                 compare.append((n, _compare(path, args.vessel, args.repeat)))
+                if ref is not None:
+                    against.append((n, _compare_reference(path, args.vessel, args.repeat, ref)))
     print("|   rows | total s | load s | LS s | OE s | peak MB | above interpreter MB | "
           "held-out NRMSE LS / OE |")
     print("|---:|---:|---:|---:|---:|---:|---:|---|")
@@ -182,6 +241,22 @@ def main() -> None:
                   f"{a['output_error_nrmse_val']:.6g} / {b['output_error_nrmse_val']:.6g} |")
             met = "met" if ratio >= 5 else "NOT met"
             print(f"goal (issue 13) ratio >= 5 at {n} rows: {met} ({ratio:.1f})")
+    if against:
+        print(f"this code vs the fit of {args.reference} (before the compiled simulator), interleaved runs, "
+              f"{args.repeat} fits per run, best of each:")
+        print("|   rows | reference as shipped s | reference, 1 BLAS thread s | now s | ratio (shipped) | "
+              "ratio (1 BLAS thread) | held-out NRMSE reference / now |")
+        print("|---:|---:|---:|---:|---:|---:|---|")
+        for n, b in against:
+            a, a1, c = b["reference"], b["reference_1blas"], b["compiled"]
+            r, r1 = a["output_error_best_s"] / c["output_error_best_s"], a1["output_error_best_s"] / c[
+                "output_error_best_s"]
+            print(f"| {n:>6} | {a['output_error_best_s']:.3f} | {a1['output_error_best_s']:.3f} | "
+                  f"{c['output_error_best_s']:.3f} | **{r:.1f}** | **{r1:.1f}** | "
+                  f"{a['output_error_nrmse_val']:.6g} / {c['output_error_nrmse_val']:.6g} |")
+            print(f"goal (issue 13) >= 5x faster than {args.reference} at {n} rows: "
+                  f"{'met' if min(r, r1) >= 5 else 'met as shipped only' if r >= 5 else 'NOT met'} "
+                  f"(as shipped {r:.1f}, single-threaded BLAS both {r1:.1f})")
     if len(results) >= 2:
         print("growth exponent (d log y / d log rows; 1 = linear, 2 = quadratic):")
         pairs = list(itertools.pairwise(results))
