@@ -180,6 +180,42 @@ def test_lost_thruster_with_changed_damping_names_the_thruster_and_fits_the_damp
     assert p["D_Q[5,5]"] == pytest.approx(DQ[5, 5], rel=0.1)
 
 
+# three effects at once (Minerva 2, 0.1 m/s current towards 46 deg): the combination grows by one
+# effect while each earns its place; (seed, plant parameters besides the current, buoyancy error)
+THREE = [(15, 1, 100.0), (16, 2, 0.0)]
+
+
+@pytest.mark.parametrize(("seed", "n_lost", "buoyancy"), THREE)
+def test_three_effects_are_all_named(tmp_path: Path, seed: int, n_lost: int, buoyancy: float) -> None:
+    m2 = load_vessel("minerva2")
+    assert m2.restoring is not None
+    rng = np.random.default_rng(seed)
+    lost = ([int(rng.integers(m2.thrusters.count)) + 1] if n_lost == 1
+            else [int(k) + 1 for k in rng.choice(m2.thrusters.count, 2, replace=False)])
+    truth_eta = dict(zip(lost, (0.6, 0.75), strict=False))
+    truth = dataclasses.replace(m2, restoring=dataclasses.replace(m2.restoring,
+                                                                  buoyancy=m2.restoring.buoyancy + buoyancy))
+    plant = {**{f"thruster_efficiency_{k}": e for k, e in truth_eta.items()}, "current_speed": 0.1,
+             "current_direction": 0.8}
+    d = diagnose(_log(tmp_path, "minerva2", seed, plant, 120.0, 0.05, truth))
+    _report(d, f"{plant}, buoyancy +{buoyancy:g} N")
+    expected = ["current", *(["thruster_loss"] * n_lost), *(["constant_force"] if buoyancy else [])]
+    assert sorted(d.effects) == sorted(expected), d.evidence
+    assert d.cause is not None and d.cause.accepted and d.cause.significant
+    assert _lost(d) == {k: pytest.approx(e, abs=ETA_TOL) for k, e in truth_eta.items()}
+    p = d.extended.params
+    assert p["v_c_north"] == pytest.approx(0.1 * math.cos(0.8), abs=CURRENT_TOL)
+    assert p["v_c_east"] == pytest.approx(0.1 * math.sin(0.8), abs=CURRENT_TOL)
+    if buoyancy:
+        assert p["F_0[Z]"] == pytest.approx(-buoyancy, rel=FORCE_TOL)
+    # it beats every combination of one effect fewer, each fitted in the search
+    subs = [c for c in d.candidates if c.fit is not None and c.size == 2
+            and set(c.members()) <= set(d.cause.members())]
+    assert len(subs) == 3 and all(c.fit.nrmse_validation > 1.02 * d.cause.fit.nrmse_validation  # type: ignore[union-attr]
+                                  for c in subs)
+    assert d.evidence.startswith("3 effects act together")
+
+
 @pytest.mark.parametrize(("vessel", "seed", "duration", "dt"), [("minerva2", 7, 120.0, 0.05),
                                                                 ("amv_osf", 8, 200.0, 0.1)])
 def test_clean_maneuver_log_names_nothing(tmp_path: Path, vessel: str, seed: int, duration: float,

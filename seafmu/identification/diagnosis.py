@@ -557,6 +557,7 @@ MANEUVER_REFERENCES = 2  # single-effect fits the pairs are screened from (lowes
 # Evaluations of a part's own fit (started from the pair's values): a part alone is the worse model
 # wherever the pair is right, and its cost falls most in the first few steps.
 PART_NFEV = 6
+MANEUVER_MAX_EFFECTS = 3  # a combination grows by one effect at a time while each earns its place
 
 
 def _maneuver_members(trial: Trial, singles: list[Candidate]) -> tuple[list[Any], dict[int, Candidate]]:
@@ -652,6 +653,7 @@ def _maneuver_combinations(trial: Trial, base: FitResult, singles: list[Candidat
                 if old is None or pair.nrmse_validation < old.nrmse_validation:
                     promising[frozenset((i, j))] = pair
     out: list[Candidate] = []
+    grown: list[tuple[Candidate, tuple[int, ...]]] = []  # accepted combinations and their members
     best_screen = math.inf  # the screened held-out NRMSE of the first accepted pair
     for pair in sorted(promising.values(), key=lambda sc: sc.nrmse_validation)[:MANEUVER_PAIRS]:
         if pair.nrmse_validation > SCREEN_RATIO * best_screen:
@@ -668,7 +670,58 @@ def _maneuver_combinations(trial: Trial, base: FitResult, singles: list[Candidat
             out += _against_parts(trial, base, cand, objs, singles + out, rule, noise)
         if cand.accepted:
             best_screen = min(best_screen, pair.nrmse_validation)
+            grown.append((cand, pair.members))
+    while grown:  # a third effect (and further) on the best accepted combination
+        grown.sort(key=lambda g: g[0].fit.aic)  # type: ignore[union-attr]
+        cand, idx = grown[0]
+        if len(idx) >= MANEUVER_MAX_EFFECTS:
+            break
+        nxt = _grow(trial, base, cand, idx, members, singles + out, rule, noise)
+        if nxt is None:
+            break
+        out += nxt[0]
+        grown = [(nxt[0][0], nxt[1])] if nxt[0][0].accepted else []
     return out
+
+
+Grown = tuple[list[Candidate], tuple[int, ...]]
+
+
+def _grow(trial: Trial, base: FitResult, cand: Candidate, idx: tuple[int, ...], members: list[Any],
+          fitted: list[Candidate], rule: Rule, noise: float) -> Grown | None:
+    """One more extension on an accepted combination: every compatible member screened from its fit
+    (as the pairs are), the best one fitted if its step beats the combination's own step held out
+    by ``SCREEN_RATIO`` and the combination's fit by the rule's ratio, then judged against each of
+    its sub-combinations (the missing ones fitted now). Returns the candidates fitted (the larger
+    combination first) and its members, or None when no member is promising."""
+    from seafmu.identification.maneuver.fit import screen_extensions
+
+    assert cand.fit is not None
+    problem = maneuver_problem(trial)
+    d = problem.vessel.dof
+    more = [tuple(sorted((*idx, j))) for j in range(len(members)) if j not in idx
+            and all(_pairable(members[j], members[i], d) for i in idx)]
+    if not more:
+        return None
+    try:
+        screened = screen_extensions(problem, dict(cand.fit.params), members, [tuple(sorted(idx)), *more])
+    except (ValueError, np.linalg.LinAlgError, FloatingPointError):
+        return None
+    if screened is None:
+        return None
+    own, rest = screened[0], screened[1:]
+    ok = [sc for sc in rest if _screen_passes(sc, own)
+          and sc.nrmse_validation * rule.min_ratio <= cand.fit.nrmse_validation
+          and not _claim_contradicted(trial, [members[k] for k in sc.members], sc.start, noise)]
+    if not ok:
+        return None
+    best = min(ok, key=lambda sc: sc.nrmse_validation)
+    objs = tuple(members[k] for k in best.members)
+    bigger = _fit_members(trial, base, objs, dict(best.start), rule, noise)
+    new = [bigger]
+    if bigger.accepted:
+        new += _against_parts(trial, base, bigger, objs, fitted, rule, noise)
+    return new, best.members
 
 
 def _claim_contradicted(trial: Trial, objs: list[Any], values: dict[str, float], noise: float) -> bool:
@@ -709,27 +762,28 @@ def _fit_members(trial: Trial, base: FitResult, objs: tuple[Any, ...], start: di
 
 def _against_parts(trial: Trial, base: FitResult, cand: Candidate, objs: tuple[Any, ...],
                    fitted: list[Candidate], rule: Rule, noise: float) -> list[Candidate]:
-    """A maneuver pair earns its parameters only over each of its parts alone: a part the single
-    search did not fit (a thruster it did not locate) is fitted now, from the pair's values without
-    the other part's. Returns the parts fitted here."""
+    """A maneuver combination earns its parameters only over each of its sub-combinations (one
+    member left out): one the search did not fit (a thruster the single search did not locate) is
+    fitted now, from the combination's values without the left-out member's, briefly
+    (``PART_NFEV``). Returns the sub-combinations fitted here."""
     assert cand.fit is not None
     have = {frozenset(c.members()): c for c in fitted if c.fit is not None}
-    groups = cand.member_groups()
+    d = maneuver_problem(trial).vessel.dof
+    groups = [tuple(o.maneuver_params(d)) for o in objs]
     new: list[Candidate] = []
     n_val = int(cand.fit.extras.get("n_validation", 0))
-    for i, obj in enumerate(objs):
-        key = frozenset([(obj.name, tuple(sorted(groups[i])))])
+    for i in range(len(objs)):
+        rest, rest_groups = objs[:i] + objs[i + 1:], groups[:i] + groups[i + 1:]
+        key = frozenset((o.name, tuple(sorted(g))) for o, g in zip(rest, rest_groups, strict=True))
         sub = have.get(key)
         if sub is None:
-            drop = {q for j, g in enumerate(groups) if j != i for q in g}
-            start = {k: v for k, v in cand.fit.params.items() if k not in drop}
-            sub = _fit_members(trial, base, (obj,), start, rule, noise, PART_NFEV)
+            start = {k: v for k, v in cand.fit.params.items() if k not in groups[i]}
+            sub = _fit_members(trial, base, rest, start, rule, noise, PART_NFEV)
             new.append(sub)
         if sub.fit is None:
             continue
         ratio, gain, dAIC = _compare(sub.fit, cand.fit)
-        label = f"{obj.name} ({', '.join(groups[i])})" if len(groups[i]) == 1 else obj.name
-        earned = _rule_reasons(ratio, gain, dAIC, n_val, rule, against=label)
+        earned = _rule_reasons(ratio, gain, dAIC, n_val, rule, against=sub.label())
         if earned and cand.accepted:
             cand.accepted = False
             cand.reason = "does not earn its parameters: " + "; ".join(earned)
