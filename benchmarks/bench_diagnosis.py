@@ -25,6 +25,7 @@ time, the per-candidate times and the answer (the located thruster and its effic
 from __future__ import annotations
 
 import argparse
+import os
 import platform
 import tempfile
 import time
@@ -197,17 +198,17 @@ def maneuvers(samples: int) -> None:
     """Maneuver diagnoses (Minerva 2, AMV; clean and one thruster at 60 %): the 5 s goal."""
     from seafmu.identification.effects.thruster_loss import thruster_of
 
-    print("| vessel | hidden | samples | simulated s | diagnosis s | per candidate s | answer |")
-    print("|---|---|---|---|---|---|---|")
+    print("| vessel | hidden | samples | simulated s | diagnosis s | CPU s | per candidate s | answer |")
+    print("|---|---|---|---|---|---|---|---|")
     worst = 0.0
     with tempfile.TemporaryDirectory() as tmp:
         for vessel, seed, lost in MANEUVER_CASES:
             t0 = time.perf_counter()
             tr, label = maneuver_trial(Path(tmp), vessel, seed, lost, samples)
             sim = time.perf_counter() - t0
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             d = diagnose(tr)
-            wall = time.perf_counter() - t0
+            wall, cpu = time.perf_counter() - t0, time.process_time() - c0
             worst = max(worst, wall)
             per = ", ".join(f"{c.effect} {c.seconds:.2f}" for c in d.candidates)
             answer = d.effect
@@ -216,9 +217,12 @@ def maneuvers(samples: int) -> None:
                 (name,) = [p for p in f.param_names if thruster_of(p) is not None]
                 lo, hi = f.ci95[name]
                 answer += f": thruster {thruster_of(name) + 1} at {f.params[name]:.3f} [{lo:.3f}, {hi:.3f}]"
-            print(f"| {vessel} | {label} | {samples} | {sim:.1f} | {wall:.2f} | {per} | {answer} |")
+            print(f"| {vessel} | {label} | {samples} | {sim:.1f} | {wall:.2f} | {cpu:.2f} | {per} | "
+                  f"{answer} |")
     print(f"\nslowest maneuver diagnosis: {worst:.2f} s (goal < 5 s), machine "
-          f"{platform.processor() or platform.machine()}, python {platform.python_version()}")
+          f"{platform.processor() or platform.machine()}, python {platform.python_version()}, load average "
+          f"{os.getloadavg()[0]:.1f} (CPU s: this process's own time; on a machine shared with other work "
+          "the wall time is longer)")
 
 
 def main() -> None:
