@@ -591,71 +591,23 @@ def _pairable(a: Any, b: Any, d: int) -> bool:
 
 def _maneuver_combinations(trial: Trial, base: FitResult, singles: list[Candidate],
                            rule: Rule) -> list[Candidate]:
-    """Pairs of maneuver extensions (two effects, or two located thrusters), screened cheaply and
-    the promising ones fitted, warm started, and judged like any combination.
+    """Pairs of maneuver extensions (two effects, or two located thrusters), screened cheaply
+    (``_screen_pairs``) and the promising ones fitted, warm started, and judged like any
+    combination; then an accepted pair grows by one effect at a time (``_grow``).
 
-    Screen (``maneuver.fit.screen_extensions``): from the accepted single-effect fits (lowest AIC
-    first, at most ``MANEUVER_REFERENCES``), else from the single fit of lowest AIC if it beats the
-    baseline's (a part of a pair alone may do worse held out), else from the baseline (a pair may
-    explain what each part alone cannot), one Gauss-Newton step in the damping
-    and the pair's parameters, simulated on the fitted and the held-out part. A pair is fitted only
-    where its step beats the step of each of its parts from the same reference by ``SCREEN_RATIO``
-    held out, beats every accepted single fit held out by the rule's ratio (the
-    cause must, ``choose``), and claims nothing its effects deny (``contradiction``: a lost thruster
-    delivering more than its nominal thrust). The best ``MANEUVER_PAIRS`` of those are fitted,
-    started from the step (and from the accepted single fits' values); a further pair only while
-    its step is about as good as that of a pair already accepted (a rival explanation). Then the
-    rule against the baseline and against each part alone (fitted now from the pair's values where
-    the single search did not fit it: a thruster it did not locate).
+    The best ``MANEUVER_PAIRS`` screened pairs are fitted, started from the screen's step (and
+    from the accepted single fits' values of their own effects); a further pair only while its
+    step is about as good as that of a pair already accepted (a rival explanation). Each is judged
+    by the rule against the baseline and against each part alone (fitted now from the pair's values
+    where the single search did not fit it: a thruster it did not locate).
     """
-    from seafmu.identification.maneuver.fit import screen_extensions
-
-    problem = maneuver_problem(trial)
-    d = problem.vessel.dof
+    d = maneuver_problem(trial).vessel.dof
     members, single_of = _maneuver_members(trial, singles)
-    # references: the single fits that explain most (AIC), accepted or not: a part of a pair fitted
-    # alone may be held back by the other part's absence (held out worse), yet its fit is near the
-    # pair's
-    ranked = sorted((c for c in singles if c.fit is not None and c.delta_aic <= rule.max_delta_aic),
-                    key=lambda c: c.fit.aic)  # type: ignore[union-attr]
-    chosen = [c for c in ranked if c.accepted][:MANEUVER_REFERENCES] or ranked[:1]
-    refs: list[tuple[dict[str, float], list[int]]] = []  # (reference values, the members it has)
-    for c in chosen:
-        refs.append((dict(c.fit.params), [i for i, s in single_of.items() if s is c]))  # type: ignore[union-attr]
-    if not refs:
-        refs.append((dict(base.params), []))
-    promising: dict[frozenset[int], Any] = {}
     noise = min((noise_level(c.fit) for c in singles if c.fit is not None), default=noise_level(base))
-    # the held-out error a pair must beat (choose: a combination over every accepted simpler one)
-    best_single = min((c.fit.nrmse_validation for c in singles if c.accepted and c.fit is not None),
-                      default=math.inf)
-    for values, have in refs:
-        pairs = [(i, j) for i in range(len(members)) for j in range(i + 1, len(members))
-                 if _pairable(members[i], members[j], d) and (not have or i in have or j in have)]
-        if not pairs:
-            continue
-        subs = [(i,) for i in have] if have else [(), *((i,) for i in range(len(members)))]
-        try:
-            screened = screen_extensions(problem, values, members, subs + pairs)
-        except (ValueError, np.linalg.LinAlgError, FloatingPointError):
-            continue
-        if screened is None:
-            continue
-        by = {sc.members: sc for sc in screened}
-        for i, j in pairs:
-            pair = by[(i, j)]
-            parts = [by[(k,)] for k in (i, j) if (k,) in by] or [by[()]]
-            if pair.nrmse_validation * rule.min_ratio > best_single or _claim_contradicted(
-                    trial, [members[i], members[j]], pair.start, noise):
-                continue  # cannot beat an accepted single effect, or claims what the data deny
-            if all(_screen_passes(pair, sub) for sub in parts):
-                old = promising.get(frozenset((i, j)))
-                if old is None or pair.nrmse_validation < old.nrmse_validation:
-                    promising[frozenset((i, j))] = pair
     out: list[Candidate] = []
     grown: list[tuple[Candidate, tuple[int, ...]]] = []  # accepted combinations and their members
     best_screen = math.inf  # the screened held-out NRMSE of the first accepted pair
-    for pair in sorted(promising.values(), key=lambda sc: sc.nrmse_validation)[:MANEUVER_PAIRS]:
+    for pair in _screen_pairs(trial, base, singles, members, single_of, rule, noise)[:MANEUVER_PAIRS]:
         if pair.nrmse_validation > SCREEN_RATIO * best_screen:
             break  # clearly worse than a pair already accepted: not a rival explanation
         objs = tuple(members[k] for k in pair.members)
@@ -682,6 +634,54 @@ def _maneuver_combinations(trial: Trial, base: FitResult, singles: list[Candidat
         out += nxt[0]
         grown = [(nxt[0][0], nxt[1])] if nxt[0][0].accepted else []
     return out
+
+
+def _screen_pairs(trial: Trial, base: FitResult, singles: list[Candidate], members: list[Any],
+                  single_of: dict[int, Candidate], rule: Rule, noise: float) -> list[Any]:
+    """The pairs worth fitting, best screened held-out NRMSE first (``maneuver.fit.Screened``).
+
+    References: the accepted single-effect fits (lowest AIC first, at most
+    ``MANEUVER_REFERENCES``), else the single fit of lowest AIC if it beats the baseline's (a part
+    of a pair alone may do worse held out, yet its fit is near the pair's), else the baseline (a
+    pair may explain what each part alone cannot). From each, the pairs containing its effect get
+    one Gauss-Newton step in the damping and their parameters (``screen_extensions``). A pair is
+    kept where its step beats the step of each of its parts from the same reference by
+    ``SCREEN_RATIO`` held out, can beat every accepted single fit held out by the rule's ratio (the
+    cause must, ``choose``), and claims nothing its effects deny (``contradiction``: a lost
+    thruster delivering more than its nominal thrust).
+    """
+    from seafmu.identification.maneuver.fit import screen_extensions
+
+    problem = maneuver_problem(trial)
+    d = problem.vessel.dof
+    ranked = sorted((c for c in singles if c.fit is not None and c.delta_aic <= rule.max_delta_aic),
+                    key=lambda c: c.fit.aic)  # type: ignore[union-attr]
+    chosen = [c for c in ranked if c.accepted][:MANEUVER_REFERENCES] or ranked[:1]
+    refs = [(dict(c.fit.params), [i for i, s in single_of.items() if s is c])  # type: ignore[union-attr]
+            for c in chosen] or [(dict(base.params), [])]
+    best_single = min((c.fit.nrmse_validation for c in singles if c.accepted and c.fit is not None),
+                      default=math.inf)
+    promising: dict[frozenset[int], Any] = {}
+    for values, have in refs:
+        pairs = [(i, j) for i in range(len(members)) for j in range(i + 1, len(members))
+                 if _pairable(members[i], members[j], d) and (not have or i in have or j in have)]
+        subs = [(i,) for i in have] if have else [(), *((i,) for i in range(len(members)))]
+        try:
+            screened = screen_extensions(problem, values, members, subs + pairs) if pairs else None
+        except (ValueError, np.linalg.LinAlgError, FloatingPointError):
+            screened = None
+        by = {sc.members: sc for sc in screened or []}
+        for i, j in pairs if screened else []:
+            pair = by[(i, j)]
+            parts = [by[(k,)] for k in (i, j) if (k,) in by] or [by[()]]
+            if pair.nrmse_validation * rule.min_ratio > best_single or _claim_contradicted(
+                    trial, [members[i], members[j]], pair.start, noise):
+                continue  # cannot beat an accepted single effect, or claims what the data deny
+            old = promising.get(frozenset((i, j)))
+            if all(_screen_passes(pair, sub) for sub in parts) and (
+                    old is None or pair.nrmse_validation < old.nrmse_validation):
+                promising[frozenset((i, j))] = pair
+    return sorted(promising.values(), key=lambda sc: sc.nrmse_validation)
 
 
 Grown = tuple[list[Candidate], tuple[int, ...]]

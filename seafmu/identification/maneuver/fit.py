@@ -416,6 +416,42 @@ def _coarse_setup(setup: _SimSetup) -> _SimSetup:
     return _SimSetup(sim, setup.meas[:, ::c], setup.mask[:, ::c], setup.scale, None)
 
 
+def _reference_model(plant: dict[str, np.ndarray], start: dict[str, float], d: int) -> tuple:
+    """(M, D_L, D_Q, fitted damping diagonals as (name, DOF)): the vessel file's matrices with the
+    diagonals a fit gives in ``start``."""
+    M0, DL0, DQ0 = plant["M"].copy(), plant["D_L"].copy(), plant["D_Q"].copy()
+    damp: list[tuple[str, int]] = []
+    for i in range(d):
+        for name, mat in ((f"D_L[{i},{i}]", DL0), (f"D_Q[{i},{i}]", DQ0)):
+            if name in start:
+                mat[i, i] = start[name]
+                damp.append((name, i))
+        M0[i, i] = start.get(f"M[{i},{i}]", M0[i, i])
+    return M0, DL0, DQ0, damp
+
+
+def _gauss_newton_steps(J: np.ndarray, r0: np.ndarray, nD: int, effect_cols: list[list[int]]) -> np.ndarray:
+    """One Gauss-Newton step per subset (rows): in the first ``nD`` columns of ``J`` (nP, rows),
+    always, and the subset's effect columns (``nD +`` each); zero in the others."""
+    G, b = J @ J.T, J @ r0
+    steps = np.zeros((len(effect_cols), J.shape[0]))
+    for k, ecols in enumerate(effect_cols):
+        cols = list(range(nD)) + [nD + j for j in ecols]
+        A = G[np.ix_(cols, cols)]
+        cs = np.sqrt(np.maximum(np.diag(A), 1e-300))
+        steps[k, cols] = -np.linalg.lstsq(A / np.outer(cs, cs), b[cols] / cs, rcond=None)[0] / cs
+    return steps
+
+
+def _nrmse_of(s: _SimSetup, r: np.ndarray) -> np.ndarray:
+    """Mean per-DOF NRMSE (as ``FitResult.nrmse_validation``) of K models' normalised residuals
+    r (K, compared samples, d); inf where a model diverged."""
+    y = s.meas[s.mask]
+    spread = np.sqrt(np.sum((y - y.mean(axis=0)) ** 2, axis=0)) / s.scale
+    nr = np.mean(np.sqrt(np.sum(r**2, axis=1)) / np.maximum(spread, 1e-300), axis=1)
+    return np.where(np.isfinite(nr), nr, np.inf)
+
+
 def screen_extensions(problem: ManeuverProblem, start: dict[str, float], members: list[CatalogueEffect],
                       subsets: list[tuple[int, ...]]) -> list[Screened] | None:
     """Each subset of ``members`` (effect objects: located variants, or effects) screened without a
@@ -438,14 +474,7 @@ def screen_extensions(problem: ManeuverProblem, start: dict[str, float], members
     setup = _coarse_setup(problem.fit_setup)
     val = _coarse_setup(problem.val_setup) if problem.val_setup is not None else None
     d = vessel.dof
-    M0, DL0, DQ0 = plant["M"].copy(), plant["D_L"].copy(), plant["D_Q"].copy()
-    damp: list[tuple[str, int]] = []  # (name, DOF) of the fitted damping diagonals
-    for i in range(d):
-        for name, mat in ((f"D_L[{i},{i}]", DL0), (f"D_Q[{i},{i}]", DQ0)):
-            if name in start:
-                mat[i, i] = start[name]
-                damp.append((name, i))
-        M0[i, i] = start.get(f"M[{i},{i}]", M0[i, i])
+    M0, DL0, DQ0, damp = _reference_model(plant, start, d)
     allm = Combined(members, d)
     enames = allm.maneuver_params(d)
     sizes = [len(m.maneuver_params(d)) for m in members]
@@ -481,22 +510,13 @@ def screen_extensions(problem: ManeuverProblem, start: dict[str, float], members
         return None
     R = np.where(np.isfinite(R), R, 1e3)
     J = (R[1:] - R[0]) / np.concatenate([h_d, h_e])[:, None]  # (nD + nE, rows)
-    G, b = J @ J.T, J @ R[0]
-    steps = np.zeros((len(subsets), nD + nE))
-    for k, sub in enumerate(subsets):
-        cols = list(range(nD)) + [nD + j for m in sub for j in range(offs[m], offs[m + 1])]
-        A = G[np.ix_(cols, cols)]
-        cs = np.sqrt(np.maximum(np.diag(A), 1e-300))
-        steps[k, cols] = -np.linalg.lstsq(A / np.outer(cs, cs), b[cols] / cs, rcond=None)[0] / cs
+    steps = _gauss_newton_steps(J, R[0], nD, [[j for m in sub for j in range(offs[m], offs[m + 1])]
+                                               for sub in subsets])
     Es = ref[None] + steps[:, nD:]
     fit_r = simulate(setup, steps[:, :nD], Es, x0)
     costs = np.where(np.all(np.isfinite(fit_r), axis=1), np.sum(fit_r**2, axis=1), np.inf)
     if val is not None:
-        vr = simulate(val, steps[:, :nD], Es, None).reshape(len(subsets), -1, d)  # normalised residuals
-        y = val.meas[val.mask]
-        spread = np.sqrt(np.sum((y - y.mean(axis=0)) ** 2, axis=0)) / val.scale
-        nr = np.mean(np.sqrt(np.sum(vr**2, axis=1)) / np.maximum(spread, 1e-300), axis=1)
-        nr = np.where(np.isfinite(nr), nr, np.inf)
+        nr = _nrmse_of(val, simulate(val, steps[:, :nD], Es, None).reshape(len(subsets), -1, d))
     else:
         nr = np.full(len(subsets), np.nan)
     out = []
