@@ -123,17 +123,21 @@ def noise_propagated(jac: np.ndarray, draws: np.ndarray) -> np.ndarray:
 
 
 def robust_ci(names: list[str], theta: np.ndarray, nfree: int, jac: np.ndarray, resid: list[np.ndarray],
-              draws: np.ndarray | None, corr_len: int) -> dict[str, dict[str, float]]:
+              draws: np.ndarray | None, corr_len: int, more_draws: np.ndarray | None = None
+              ) -> dict[str, dict[str, float]]:
     """Per free parameter (the first ``nfree``): value, the three standard errors (white LS, noise
     propagated, Newey-West) and the 95 % interval from the wider of the last two. ``jac``: d output
     / d theta on the fit samples; ``resid``: measured - model per run; ``draws`` (B, n): the sensor
     noise on the same samples (None: not propagated); ``corr_len``: the noise's correlation length
-    in samples (the Newey-West bandwidth's floor)."""
+    in samples (the Newey-West bandwidth's floor); ``more_draws`` (B2, n): an independent noise
+    (fewer draws: an input's noise through the model's response), whose covariance adds."""
     r_all = np.concatenate(resid)
     dof = max(len(r_all) - len(theta), 1)
     ls = float(np.sum(r_all**2)) / dof * _inv_normal(jac)
     hac = newey_west(jac, resid, corr_len)
     prop = noise_propagated(jac, draws) if draws is not None else np.zeros_like(hac)
+    if more_draws is not None and len(more_draws) > 1:
+        prop = prop + noise_propagated(jac, more_draws)
     out = {}
     for k, q in enumerate(names[:nfree]):
         se_ls, se_hac, se_noise = (math.sqrt(max(float(c[k, k]), 0.0)) for c in (ls, hac, prop))

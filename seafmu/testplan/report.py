@@ -29,6 +29,19 @@ def _err(row: dict[str, Any]) -> str:
     return f"{100.0 * (row['value'] - row['file']) / abs(row['file']):+.2f} %"
 
 
+def _intervals_line(f: Any, names: dict[str, str]) -> str:
+    """How each 95 % interval was made: the three standard errors, the wider of the last two used."""
+    rows = f.extras.get("intervals", {})
+    parts = [f"{names.get(q, q)}: white-noise {_g(x['se_white'])}, sensor noise propagated "
+             f"{_g(x['se_noise'])}, Newey-West {_g(x['se_newey_west'])}"
+             for q, x in rows.items() if q in names]
+    if not parts:
+        return ""
+    return ("   Standard errors (the 95 % interval is 1.96 times the wider of the last two; the white-noise "
+            "one assumes uncorrelated residuals, which a filtered or differentiated velocity and a model "
+            "misfit are not): " + "; ".join(parts) + ".")
+
+
 def _plot(res: Any, out: Path) -> list[str]:
     names = []
     for name, r in res.results.items():
@@ -116,7 +129,8 @@ def write_report(res: Any, out: Path) -> Path:
                   + ", ".join(f"{coefficient_names(tp.axis).get(k, k)} = {val:.5g}"
                               for k, val in r.fits["record"].params.items())
                   + f"; held-out NRMSE on the step {r.fits['record'].nrmse_validation:.3g} "
-                  f"(fit {r.fits['record'].nrmse_fit:.3g}).", ""]
+                  f"(fit {r.fits['record'].nrmse_fit:.3g}); {r.fits['record'].method}.",
+                  _intervals_line(r.fits["record"], coefficient_names(tp.axis)), ""]
             if r.coupled:
                 L.append("5. **Coupled terms** (impulse on each held axis from rest to rest, over the trial "
                          "axis' displacement):")
@@ -143,7 +157,7 @@ def write_report(res: Any, out: Path) -> Path:
                   "motion and the thrusters' measured forces as inputs, the angle"
                   + (" and its rate" if f.extras.get("uses_rate") else "") + " as outputs: "
                   + ", ".join(f"{names.get(k, k)} = {val:.5g}" for k, val in f.params.items())
-                  + f"; NRMSE {f.nrmse_fit:.3g}.", ""]
+                  + f"; NRMSE {f.nrmse_fit:.3g}.", _intervals_line(f, names), ""]
         for w in r.fits["record"].warnings:
             L.append(f"- warning: {w}")
         L += [f"![{name}]({figs[list(res.results).index(name)]})", ""]
