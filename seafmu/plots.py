@@ -23,7 +23,6 @@ import signal
 import subprocess
 import sys
 from collections.abc import Callable, Collection, Iterator
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -235,20 +234,51 @@ def draw_all(s: Series, out: Path, only: Collection[str] | None = None) -> Drawn
     return drawn, failed
 
 
+def _in_order(parts: list[Drawn]) -> Drawn:
+    """Shares of the figures merged, in the report's order."""
+    order = {name: i for i, (name, _, _) in enumerate(FIGURES)}
+    drawn = sorted((d for part in parts for d in part[0]), key=lambda d: order[d[1]])
+    failed = sorted((f for part in parts for f in part[1]),
+                    key=lambda f: order.get(f.split(":", 1)[0], len(order)))
+    return drawn, failed
+
+
+def draw_shared(s: Series, out: Path, parts: int) -> Drawn:
+    """``draw_all`` with the figures shared (round robin in the report's order) by this process
+    and ``parts - 1`` forks of it: made once matplotlib is loaded, they start drawing at once.
+    A share whose process fails is drawn here."""
+    names = [name for name, _, _ in FIGURES]
+    parts = max(1, min(parts, len(names)))
+    shares = [names[i::parts] for i in range(parts)]
+    if parts == 1:
+        return draw_all(s, out)
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    results: list[Drawn] = []
+    with ProcessPoolExecutor(parts - 1, mp_context=multiprocessing.get_context("fork")) as pool:
+        futures = [pool.submit(draw_all, s, out, share) for share in shares[1:]]
+        results.append(draw_all(s, out, shares[0]))
+        for share, future in zip(shares[1:], futures, strict=True):
+            try:
+                results.append(future.result())
+            except Exception:  # the forked process failed (not a figure: those are caught inside)
+                results.append(draw_all(s, out, share))
+    return _in_order(results)
+
+
 class Plotter:
-    """``with Plotter() as p: ... p.draw(series, out)`` — the figures drawn by worker processes
+    """``with Plotter() as p: ... p.draw(series, out)`` — the figures drawn by a worker process
     started on entry (so matplotlib is imported while the run goes), else in this process.
 
-    ``workers`` share the figures (round robin in the report's order). By default one worker
-    per core beyond the run's own, at most two: on two cores, a second worker importing
-    matplotlib would take CPU from the simulation, and cost more than it saves when drawing.
+    The worker shares the figures with ``parts - 1`` forks of itself (default: one per core, as
+    the run's process only waits while they draw); a second worker started with the run would
+    instead import matplotlib again, taking CPU from the simulation on a two-core machine.
     """
 
-    def __init__(self, workers: int | None = None) -> None:
-        if workers is None:
-            workers = min(2, len(os.sched_getaffinity(0)) - 1)
-        self.workers = max(1, min(workers, len(FIGURES)))
-        self._procs: list[subprocess.Popen[bytes]] = []
+    def __init__(self, parts: int | None = None) -> None:
+        self.parts = len(os.sched_getaffinity(0)) if parts is None else parts
+        self._proc: subprocess.Popen[bytes] | None = None
 
     def __enter__(self) -> Plotter:
         self.start()
@@ -258,60 +288,41 @@ class Plotter:
         self.close()
 
     def start(self) -> None:
-        """Start the workers; without them (no interpreter path, no process), ``draw`` draws here."""
+        """Start the worker; without one (no interpreter path, no process), ``draw`` draws here."""
         if not sys.executable:
             return
-        # Started beside this seafmu (the folder holding the package): the workers run the same
-        # code whatever the current folder; their own session, so a terminal's Ctrl-C stops the
-        # run (which still wants its figures), not them.
+        # Started beside this seafmu (the folder holding the package): the worker runs the same
+        # code whatever the current folder; its own session, so a terminal's Ctrl-C stops the
+        # run (which still wants its figures), not the worker.
         root = Path(__file__).resolve().parents[1]
-        for _ in range(self.workers):
-            try:
-                self._procs.append(subprocess.Popen([sys.executable, "-m", "seafmu.plots"], cwd=root,
-                                                    stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                                    start_new_session=True))
-            except OSError:
-                break
+        try:
+            self._proc = subprocess.Popen([sys.executable, "-m", "seafmu.plots"], cwd=root,
+                                          stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                          start_new_session=True)
+        except OSError:
+            self._proc = None
 
     def draw(self, s: Series, out: Path) -> Drawn:
         """Draw every figure into ``out``; returns when they are all written (see ``draw_all``)."""
-        procs, self._procs = self._procs, []
-        if not procs:
-            return draw_all(s, out)
-        names = [name for name, _, _ in FIGURES]
-        shares = [names[i::len(procs)] for i in range(len(procs))]
-        # plain data (no seafmu class): a worker's module is __main__, not seafmu.plots
-        data = {"name": s.name, "time": s.time, "signals": s.signals, "out": str(Path(out).resolve())}
-        with ThreadPoolExecutor(len(procs)) as pool:  # each worker is sent its share and answers
-            replies = list(pool.map(_ask, procs, [{**data, "only": share} for share in shares]))
-        drawn: list[tuple[str, str]] = []
-        failed: list[str] = []
-        for share, reply in zip(shares, replies, strict=True):
-            d, f = reply if reply is not None else draw_all(s, out, share)  # a failed worker's share: here
-            drawn += d
-            failed += f
-        order = {name: i for i, name in enumerate(names)}
-        drawn.sort(key=lambda d: order[d[1]])
-        failed.sort(key=lambda f: order.get(f.split(":", 1)[0], len(order)))
-        return drawn, failed
+        proc, self._proc = self._proc, None
+        if proc is not None:
+            # plain data (no seafmu class): the worker's module is __main__, not seafmu.plots
+            request = {"name": s.name, "time": s.time, "signals": s.signals, "out": str(Path(out).resolve()),
+                       "parts": self.parts}
+            try:
+                reply, _ = proc.communicate(pickle.dumps(request, protocol=pickle.HIGHEST_PROTOCOL),
+                                            timeout=REPLY_TIMEOUT_S)
+                answer = json.loads(reply.decode("utf-8").strip().splitlines()[-1])
+                return [(str(t), str(n)) for t, n in answer["drawn"]], [str(f) for f in answer["failed"]]
+            except (OSError, ValueError, IndexError, KeyError, TypeError, subprocess.TimeoutExpired):
+                _stop(proc)  # the worker failed: the figures are drawn here
+        return draw_all(s, out)
 
     def close(self) -> None:
-        """Stop workers that were not used (the run failed before its figures)."""
-        procs, self._procs = self._procs, []
-        for proc in procs:
+        """Stop a worker that was not used (the run failed before its figures)."""
+        proc, self._proc = self._proc, None
+        if proc is not None:
             _stop(proc)
-
-
-def _ask(proc: subprocess.Popen[bytes], request: dict[str, Any]) -> Drawn | None:
-    """A worker's answer to one request; None (the worker stopped) when it failed."""
-    try:
-        reply, _ = proc.communicate(pickle.dumps(request, protocol=pickle.HIGHEST_PROTOCOL),
-                                    timeout=REPLY_TIMEOUT_S)
-        answer = json.loads(reply.decode("utf-8").strip().splitlines()[-1])
-        return [(str(t), str(n)) for t, n in answer["drawn"]], [str(f) for f in answer["failed"]]
-    except (OSError, ValueError, IndexError, KeyError, TypeError, subprocess.TimeoutExpired):
-        _stop(proc)
-        return None
 
 
 def _stop(proc: subprocess.Popen[bytes]) -> None:
@@ -345,7 +356,7 @@ def serve() -> int:
     except EOFError:
         return 0
     series = Series(request["name"], request["time"], request["signals"])
-    drawn, failed = draw_all(series, Path(request["out"]), request.get("only"))
+    drawn, failed = draw_shared(series, Path(request["out"]), int(request.get("parts", 1)))
     sys.stdout.write(json.dumps({"drawn": drawn, "failed": failed}) + "\n")
     sys.stdout.flush()
     return 0

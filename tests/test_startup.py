@@ -109,8 +109,8 @@ def test_the_worker_draws_the_same_figures_as_this_process(tmp_path: Path) -> No
     here.mkdir()
     there.mkdir()
     drawn_here, failed_here = plots.draw_all(s, here)
-    with plots.Plotter(workers=2) as p:
-        assert len(p._procs) == 2  # the workers were started
+    with plots.Plotter(parts=2) as p:  # the worker and a fork of it, whatever the cores
+        assert p._proc is not None  # the worker was started
         drawn_there, failed_there = p.draw(s, there)
     assert drawn_here == drawn_there and len(drawn_here) == len(plots.FIGURES)
     assert failed_here == failed_there == []
@@ -118,13 +118,13 @@ def test_the_worker_draws_the_same_figures_as_this_process(tmp_path: Path) -> No
         assert np.array_equal(_pixels(here / name), _pixels(there / name)), name
 
 
-def test_a_dead_worker_leaves_its_figures_to_this_process(tmp_path: Path) -> None:
+def test_a_dead_worker_leaves_the_figures_to_this_process(tmp_path: Path) -> None:
     s = _series()
-    with plots.Plotter(workers=2) as p:
-        dead = subprocess.Popen([sys.executable, "-c", "import sys; sys.exit(3)"], stdin=subprocess.PIPE,
-                                stdout=subprocess.PIPE)
-        p._procs[0], alive = dead, p._procs[0]
-        plots._stop(alive)
+    with plots.Plotter() as p:
+        assert p._proc is not None
+        plots._stop(p._proc)
+        p._proc = subprocess.Popen([sys.executable, "-c", "import sys; sys.exit(3)"], stdin=subprocess.PIPE,
+                                   stdout=subprocess.PIPE)
         drawn, failed = p.draw(s, tmp_path)
     assert [name for _, name in drawn] == [name for name, _, _ in plots.FIGURES] and not failed
     assert all((tmp_path / name).is_file() for _, name in drawn)
@@ -132,9 +132,9 @@ def test_a_dead_worker_leaves_its_figures_to_this_process(tmp_path: Path) -> Non
 
 def test_an_unused_worker_is_stopped() -> None:
     with plots.Plotter() as p:
-        procs = list(p._procs)
-        assert procs and all(proc.poll() is None for proc in procs)
-    assert all(proc.poll() is not None for proc in procs)
+        proc = p._proc
+        assert proc is not None and proc.poll() is None
+    assert proc.poll() is not None
 
 
 def test_a_figure_that_fails_is_reported_not_raised(tmp_path: Path) -> None:
@@ -207,7 +207,18 @@ def test_a_figure_failing_in_a_worker_is_reported_as_here(tmp_path: Path) -> Non
     s.signals["plant.north"] = s.signals["plant.north"][:10]
     (tmp_path / "a").mkdir()
     (tmp_path / "b").mkdir()
-    with plots.Plotter(workers=2) as p:
+    with plots.Plotter(parts=2) as p:
         there = p.draw(s, tmp_path / "a")
     assert there == plots.draw_all(s, tmp_path / "b")
     assert there[1] and there[1][0].startswith("trajectory.png:")
+
+
+def test_figures_shared_by_forks_are_the_same(tmp_path: Path) -> None:
+    s = _series()
+    (tmp_path / "one").mkdir()
+    (tmp_path / "shared").mkdir()
+    one = plots.draw_all(s, tmp_path / "one")
+    shared = plots.draw_shared(s, tmp_path / "shared", 3)
+    assert one == shared and len(one[0]) == len(plots.FIGURES)
+    for _, name in one[0]:
+        assert np.array_equal(_pixels(tmp_path / "one" / name), _pixels(tmp_path / "shared" / name)), name
