@@ -250,9 +250,11 @@ def _output_error(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | None, 
     error cannot rank, by one output-error Gauss-Newton step, ``_screen_variants``); the best is
     fitted alone when its equation-error gain is ``LOCATE_CLEAR`` times the runner-up's, else the
     ``LOCATE_KEEP`` best are, briefly (``LOCATE_NFEV``), and the one with the lowest cost is kept,
-    fitted to convergence (the variants have the same number of parameters, so also the lowest AIC).
-    ``info["variants"]`` lists every variant, best first: its screening costs and, where fitted,
-    its value, CI, cost and AIC.
+    fitted to convergence (the variants have the same number of parameters, so also the lowest AIC);
+    the brief fits stop at the first that leaves at most ``LOCATE_EXPLAINS`` of the cost of the
+    fitted model it starts from (it has located the effect), and a brief fit that converged is kept
+    as it is. ``info["variants"]`` lists every variant, best first: its screening costs and, where
+    fitted, its value, CI, cost and AIC.
     """
     # BLAS single-threaded: its matrices here are small (a few hundred columns at most), and threads
     # contending on a busy 2-core machine made a fit 2-5x slower (measured)
