@@ -289,3 +289,15 @@ def test_a_log_is_read_and_prepared_once_per_diagnosis(tmp_path: Path,
     fits = sum(c.fit is not None for c in d.candidates) + 1
     assert fits >= 3 and calls == {"read": 1, "prepare": 1}
     assert diagnosis._PREPARED == {}  # nothing kept after the diagnosis
+
+
+def test_a_named_combination_is_fitted_and_a_located_effect_refused(tmp_path: Path) -> None:
+    """``fit_extension`` with several names fits them together on a maneuver log; an effect that
+    must first be located (which thruster) is refused with one line."""
+    trial = _log(tmp_path, "amv_osf", 13, {"current_speed": 0.1, "current_direction": 0.8}, 120.0, 0.1)
+    base = diagnosis.fit_baseline(trial, diagnosis=True)
+    fit = diagnosis.fit_extension(trial, base, ("current", "constant_force"))
+    assert {"v_c_north", "v_c_east", "F_0[X]", "F_0[Y]", "F_0[N]"} <= set(fit.param_names)
+    assert fit.params["v_c_north"] == pytest.approx(0.1 * math.cos(0.8), abs=CURRENT_TOL)
+    with pytest.raises(diagnosis.TrialError, match="thruster_loss cannot be fitted in a named combination"):
+        diagnosis.fit_extension(trial, base, ("current", "thruster_loss"))

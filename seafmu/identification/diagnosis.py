@@ -11,8 +11,10 @@ Acceptance rule (all must hold; documented in docs/identification.md):
     dAIC = AIC_ext - AIC_base <= -10 on the fitting data,
     95 % CI of the effect parameter excludes its "effect absent" value.
 
-Then combinations of effects (``search_combinations``): each must pass the same rule and beat each
-of its sub-models by its margins; the cause is the smallest, most specific explanation the data
+Then combinations of effects (``search_combinations``; maneuver logs: ``_maneuver_combinations``,
+pairs of effects or of located thrusters, screened by one Gauss-Newton step from the single fits,
+growing by one effect at a time): each must pass the same rule and beat each of its sub-models by
+its margins; the cause is the smallest, most specific explanation the data
 support (``choose``), and every other one that passes is reported with its Akaike weight and the
 experiment that would tell it apart (``alternatives``, ``ambiguity.py``). An extension whose claim
 the data contradict (``check_claims``) is rejected.
@@ -246,9 +248,19 @@ def fit_extension(trial: Trial, base: FitResult, effect: str | tuple[str, ...],
         start = next((s for s in seeds or [] if all(q in s for q in model.free)), {**base.params})
         return static.fit_static(trial, model, start=start)
     if trial.kind == "maneuver":  # refit from the baseline's damping with the effect's parameters
-        if len(names) > 1:
-            raise TrialError(f"{trial.name}: a maneuver fit takes one extension at a time")
-        return fit_maneuver(trial, "output_error", effect=names[0], start=dict(base.params))
+        if len(names) == 1:
+            return fit_maneuver(trial, "output_error", effect=names[0], start=dict(base.params))
+        objs = [effect_objects.get(n) for n in names]
+        located = [n for n, o in zip(names, objs, strict=True) if o is None or not o.maneuver
+                   or getattr(o, "maneuver_variants", None) is not None]
+        if located:  # which thruster: the diagnosis's search locates it (_maneuver_combinations)
+            raise TrialError(f"{trial.name}: {', '.join(located)} cannot be fitted in a named combination "
+                             "(a maneuver effect that must be located, or none)")
+        start = dict(base.params)
+        for seed in seeds or []:  # the parts' fitted values, where given
+            start.update(seed if isinstance(seed, dict) else {})
+        d = maneuver_problem(trial).vessel.dof
+        return fit_maneuver(trial, "output_error", effect=Combined(objs, d), start=start)
     if len(names) == 1:
         return timeseries.fit_effect(trial, base, names[0])
     return timeseries.fit_effects(trial, base, names, seeds=seeds)
