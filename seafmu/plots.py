@@ -3,14 +3,15 @@
 Drawing them costs about a second, half of it importing matplotlib. ``Plotter`` starts a worker
 process (``python -m seafmu.plots``) when the run starts: it imports matplotlib and loads its
 fonts while the FMUs load and simulate, then draws the figures from the recorded signals it is
-sent. ``Plotter.draw`` returns only when every figure is written (or has failed), so the report
-written after it never names a figure that is not there; if the worker cannot start or dies, the
-figures are drawn in this process instead, with the same code.
+sent, shared with forks of itself (one per core). ``Plotter.draw`` returns only when every
+figure is written (or has failed), so the report written after it never names a figure that is
+not there; if the worker cannot start or dies, the figures are drawn in this process instead,
+with the same code (tests/test_startup.py: the same pixels either way).
 
 This module imports only the standard library, NumPy and (when drawing) matplotlib, so the worker
 starts without seafmu's scenario or simulation code. Lines of more samples than four per pixel
-column are reduced to each column's first, lowest, highest and last sample (M4 aggregation:
-the drawn line is the same, pixel for pixel).
+column are reduced to each column's first, lowest, highest and last sample (M4 aggregation: in
+every pixel column the line covers the same rows; only antialiasing inside it may differ).
 """
 
 from __future__ import annotations
