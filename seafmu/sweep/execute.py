@@ -301,7 +301,7 @@ def run_study(study: Study, folder: StudyFolder, workers: int | None = None, sch
     try:
         n_workers = len(cluster.worker_spec) if cluster is not None else (
             len(client.scheduler_info().get("workers", {})) or n_workers)
-        for c in todo:
+        for c in todo if not stop.requested else []:  # a signal during the validation: submit nothing
             fut = client.submit(run_case, _task(study, c), key=f"seafmu-case-{c.index}-{c.key}", pure=False)
             futures[fut] = c
         threading.Thread(target=_import_for_results, name="seafmu-sweep-imports", daemon=True).start()
