@@ -565,6 +565,8 @@ def search_combinations(trial: Trial, base: FitResult, singles: list[Candidate],
 # it is fitted (a screen is one Gauss-Newton step: it finds, the fit judges).
 MANEUVER_PAIRS = 2
 SCREEN_RATIO = 1.02
+SCREEN_RATIO_NEAR = 1.005  # ... or this ratio with a fitting-cost drop of SCREEN_DAIC (_screen_passes)
+SCREEN_DAIC = -10.0
 MANEUVER_REFERENCES = 2  # single-effect fits the pairs are screened from (lowest AIC first)
 # Evaluations of a part's own fit (started from the pair's values): a part alone is the worse model
 # wherever the pair is right, and its cost falls most in the first few steps.
@@ -668,7 +670,7 @@ def _screen_pairs(trial: Trial, base: FitResult, singles: list[Candidate], membe
     d = problem.vessel.dof
     ranked = sorted((c for c in singles if c.fit is not None and c.delta_aic <= rule.max_delta_aic),
                     key=lambda c: c.fit.aic)  # type: ignore[union-attr]
-    chosen = [c for c in ranked if c.accepted][:MANEUVER_REFERENCES] or ranked[:1]
+    chosen = sorted(ranked, key=lambda c: not c.accepted)[:MANEUVER_REFERENCES]  # accepted first
     refs = [(dict(c.fit.params), [i for i, s in single_of.items() if s is c])  # type: ignore[union-attr]
             for c in chosen] or [(dict(base.params), [])]
     best_single = min((c.fit.nrmse_validation for c in singles if c.accepted and c.fit is not None),
@@ -690,7 +692,8 @@ def _screen_pairs(trial: Trial, base: FitResult, singles: list[Candidate], membe
                     trial, [members[i], members[j]], pair.start, noise):
                 continue  # cannot beat an accepted single effect, or claims what the data deny
             old = promising.get(frozenset((i, j)))
-            if all(_screen_passes(pair, sub) for sub in parts) and (
+            if all(_screen_passes(pair, sub, _size(members, pair.members, d) - _size(members, sub.members, d))
+                   for sub in parts) and (
                     old is None or pair.nrmse_validation < old.nrmse_validation):
                 promising[frozenset((i, j))] = pair
     return sorted(promising.values(), key=lambda sc: sc.nrmse_validation)
@@ -722,7 +725,7 @@ def _grow(trial: Trial, base: FitResult, cand: Candidate, idx: tuple[int, ...], 
     if screened is None:
         return None
     own, rest = screened[0], screened[1:]
-    ok = [sc for sc in rest if _screen_passes(sc, own)
+    ok = [sc for sc in rest if _screen_passes(sc, own, _size(members, sc.members, d) - _size(members, idx, d))
           and sc.nrmse_validation * rule.min_ratio <= cand.fit.nrmse_validation
           and not _claim_contradicted(trial, [members[k] for k in sc.members], sc.start, noise)]
     if not ok:
@@ -736,6 +739,11 @@ def _grow(trial: Trial, base: FitResult, cand: Candidate, idx: tuple[int, ...], 
     return new, best.members
 
 
+def _size(members: list[Any], idx: tuple[int, ...], d: int) -> int:
+    """Parameters of the members ``idx`` in a d-DOF fit."""
+    return sum(len(members[k].maneuver_params(d)) for k in idx)
+
+
 def _claim_contradicted(trial: Trial, objs: list[Any], values: dict[str, float], noise: float) -> bool:
     """A screened combination's values already claim what its effects deny (a "lost" thruster
     delivering more than its nominal thrust)."""
@@ -743,13 +751,20 @@ def _claim_contradicted(trial: Trial, objs: list[Any], values: dict[str, float],
                                 if q in values}, trial, None, noise) for o in objs)
 
 
-def _screen_passes(pair: Any, sub: Any) -> bool:
-    """A screened pair beats a screened sub-model held out by ``SCREEN_RATIO`` (the fitting cost is
-    not compared: one step from a fit of another model can overshoot there and still point the
-    right way; the fit of the pair is judged by the whole rule)."""
+def _screen_passes(pair: Any, sub: Any, extra: int) -> bool:
+    """A screened pair beats a screened sub-model (``extra`` parameters fewer): held out by
+    ``SCREEN_RATIO``; or, where its fitting cost falls by the AIC margin ``SCREEN_DAIC``, held out
+    by ``SCREEN_RATIO_NEAR`` (one step moves two coupled terms only part of the way: a steady
+    force against a quadratic damping that absorbed it). The fitting cost alone is not enough:
+    one step from a fit of another model can overshoot there and still point the right way."""
     if not (math.isfinite(pair.nrmse_validation) and pair.nrmse_validation > 0):
         return False
-    return sub.nrmse_validation >= SCREEN_RATIO * pair.nrmse_validation
+    ratio = sub.nrmse_validation / pair.nrmse_validation
+    if ratio >= SCREEN_RATIO:
+        return True
+    if not (ratio >= SCREEN_RATIO_NEAR and pair.cost > 0 and sub.cost > 0 and math.isfinite(sub.cost)):
+        return False
+    return pair.rows * math.log(pair.cost / sub.cost) + 2.0 * extra <= SCREEN_DAIC
 
 
 def _fit_members(trial: Trial, base: FitResult, objs: tuple[Any, ...], start: dict[str, float], rule: Rule,
