@@ -372,3 +372,18 @@ def test_case_with_its_validated_scenario_runs_as_one_loaded_in_the_worker(tmp_p
     assert {k: v for k, v in rows[0].items() if k not in skip} == {k: v for k, v in rows[1].items()
                                                                    if k not in skip}
     assert any(k.startswith("check: ") for k in rows[0])
+
+
+def test_case_failing_validation_after_the_cluster_started(tmp_path: Path, built_fmus: object) -> None:
+    """The first case validates, so the local cluster starts while the others are validated; the
+    second does not: one line naming it, exit 2, the cluster closed, nothing written."""
+    study = ("name: late\nscenario: base.yaml\n"
+             "vary:\n  plant.current_speed: {values: [0.1, 0.2, -1.0], unit: m/s}\n")
+    _write(tmp_path, 6, study)
+    t0 = time.monotonic()
+    proc = _sweep(["study.yaml", "--workers", "2", "--out", "out"], tmp_path)
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.count("\n") == 1 and proc.stderr.startswith("seafmu: error: "), proc.stderr
+    assert "case 2 (plant.current_speed=-1.0 m/s)" in proc.stderr and "below the minimum 0" in proc.stderr
+    assert not (tmp_path / "out").exists()
+    assert time.monotonic() - t0 < 120  # the workers did not keep the command alive
