@@ -17,6 +17,18 @@ from seafmu.identification import fitting
 from seafmu.identification.maneuver.preprocessing import _Prepared
 from seafmu.identification.maneuver.terms import _Restoring, _sym, coriolis_tensor
 
+_BASIS: dict[int, np.ndarray] = {}
+
+
+def _coriolis_basis(d: int) -> np.ndarray:
+    """coriolis_tensor of each d x d unit matrix (d*d, d, d*d), made once per d and process (6 DOF:
+    576 Coriolis evaluations, which every simulator set-up repeated)."""
+    if d not in _BASIS:
+        eye = np.eye(d * d).reshape(d * d, d, d)
+        _BASIS[d] = np.stack([coriolis_tensor(E) for E in eye])
+        _BASIS[d].flags.writeable = False
+    return _BASIS[d]
+
 
 class _Simulator:
     """RK4 of the model for many (M, D_L, D_Q) and many segments at once.
@@ -62,9 +74,7 @@ class _Simulator:
     def _tensor(self, M: np.ndarray) -> np.ndarray:
         """coriolis_tensor of each of the K matrices M (K, d, d): (K, d, d*d), by linearity in M."""
         if self._basis is None:
-            d = self.d
-            eye = np.eye(d * d).reshape(d * d, d, d)
-            self._basis = np.stack([coriolis_tensor(E) for E in eye])  # (d*d, d, d*d)
+            self._basis = _coriolis_basis(self.d)
         return np.einsum("ke,eab->kab", M.reshape(M.shape[0], -1), self._basis)
 
     def run(self, M: np.ndarray, DL: np.ndarray, DQ: np.ndarray, x0: np.ndarray | None = None,
