@@ -65,7 +65,13 @@ class Measurement:
 
 def interval_mean(t_log: np.ndarray, f_log: np.ndarray, t: np.ndarray) -> np.ndarray:
     """Mean of f_log (n_log, k; linear between log steps) over each [t_i, t_i+1); the last row is
-    the value at t[-1]."""
+    the value at t[-1]. Non-finite log rows (a vessel link before its first shaft-speed report) are
+    bridged linearly from their finite neighbours, as ``np.interp`` did for the sampled force."""
+    f_log = np.array(f_log, dtype=float)
+    for k in range(f_log.shape[1]):
+        ok = np.isfinite(f_log[:, k])
+        if not ok.all():
+            f_log[:, k] = np.interp(t_log, t_log[ok], f_log[ok, k]) if ok.any() else 0.0
     cum = np.concatenate([np.zeros((1, f_log.shape[1])),
                           np.cumsum(0.5 * (f_log[1:] + f_log[:-1]) * np.diff(t_log)[:, None], axis=0)])
     at = np.column_stack([np.interp(t, t_log, cum[:, k]) for k in range(f_log.shape[1])])
