@@ -108,7 +108,8 @@ def test_supply_recovers_published_damping(supply_plan: tuple[object, Path]) -> 
     v = load_vessel("supply")
     ident = res.identified
     # X_u's velocity is differentiated from 1 Hz fixes; seen through the same differentiator the
-    # fit has no smoothing bias left (it was +0.10 % on every seed, against +-0.003 % of noise)
+    # fit has no smoothing bias left (it was +0.10 %, the smoothing of the true motion, against
+    # +-0.003 % of noise)
     assert abs(ident["X_u"]["value"] - ident["X_u"]["file"]) <= 0.0005 * ident["X_u"]["file"]
     _diagonal_intervals_hold_the_file(ident, ("X_u", "Y_v", "N_r"))
     tol = {"X_u": 0.01, "Y_v": 0.01, "N_r": 0.01, "N_v": 0.05}

@@ -263,11 +263,11 @@ def derived_velocity_fit(fit: FitResult, m: Measurement, force: np.ndarray, lead
 
     A quadratic Savitzky-Golay slope over 53 s cannot follow the velocity's corners where the force
     starts and stops (up to 0.2 m/s off for 25 s on either side of the supply's release); the
-    1-DOF fit read that smoothing as dynamics: X_u +0.10 % on every seed, against its +-0.003 %
-    of sensor noise. Through the same filter the model's smoothing error is the measurement's, so
-    the fit is unbiased; its residuals carry the filter's correlation, so the interval is
-    ``intervals.robust_ci`` (noise draws processed as the measurement, Newey-West). The step from
-    rest, after the record, is predicted (held out)."""
+    1-DOF fit read that smoothing as dynamics: X_u +0.10 % (the smoothing of the true motion, the
+    same on any seed), against its +-0.003 % of sensor noise. Through the same filter the model's
+    smoothing error is the measurement's, so the fit is unbiased; its residuals carry the filter's
+    correlation, so the interval is ``intervals.robust_ci`` (noise draws processed as the
+    measurement, Newey-West). The step from rest, after the record, is predicted (held out)."""
     tp = m.plan
     d = m.noise_model[tp.nu]["derived"]
     w, dt = int(d["w"]), float(d["dt"])
