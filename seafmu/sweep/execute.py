@@ -190,6 +190,9 @@ def start_local_cluster(workers: int, warmup: Path | None = None) -> Any:
 
     cluster = LocalCluster(n_workers=0, threads_per_worker=1, processes=True, host="127.0.0.1",
                            dashboard_address=None, silence_logs=logging.ERROR, preload=["seafmu.sweep.warm"],
+                           # no dashboard; the scheduler's own HTTP routes (health) on a free loopback
+                           # port, not on 8787 (taken by any other Dask cluster: a warning)
+                           scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
                            env={WARMUP_ENV: str(warmup)} if warmup is not None else {})
     try:
         with _sigint_ignored():
@@ -237,6 +240,28 @@ def _import_for_results() -> None:
         import pandas  # noqa: F401
         import pyarrow.parquet  # noqa: F401
         import scipy.stats  # noqa: F401
+
+
+def _retire_idle(client: Any, cluster: Any, retired: set[str]) -> None:
+    """Close the local workers with nothing left to run (the study's tail: fewer cases left than
+    workers), in the background, so their shutdown overlaps the last cases instead of following
+    them; ``retired`` gains their addresses. Through the cluster (``scale_down``), so that its final
+    close waits for this one instead of racing it."""
+    try:
+        info = client.scheduler_info()["workers"]
+        idle = [w for w, keys in client.processing().items() if not keys and w not in retired and w in info]
+    except Exception:
+        return
+    if not idle:
+        return
+    retired.update(idle)
+    names = [info[w]["name"] for w in idle]
+
+    def retire() -> None:
+        with contextlib.suppress(Exception):
+            cluster.sync(cluster.scale_down, names)
+
+    threading.Thread(target=retire, name="seafmu-sweep-retire", daemon=True).start()
 
 
 def _closer(client: Any, cluster: Any) -> Callable[[], None]:
@@ -310,6 +335,8 @@ def run_study(study: Study, folder: StudyFolder, workers: int | None = None, sch
 
             bar = tqdm(total=len(study.cases), initial=skipped, desc=study.name, unit="case", smoothing=0.1)
         ac = as_completed(list(futures), with_results=False)
+        retired: set[str] = set()
+        skipped_now = 0
         fails = sum(1 for r in rows.values() if r.get("status") != "pass")
         while not ac.is_empty() and not stop.requested:
             batch = ac.next_batch(block=False)
@@ -319,6 +346,7 @@ def run_study(study: Study, folder: StudyFolder, workers: int | None = None, sch
             for fut in batch:
                 c = futures[fut]
                 if fut.status == "cancelled":
+                    skipped_now += 1
                     continue
                 if fut.status == "error":
                     exc = fut.exception()
@@ -335,6 +363,8 @@ def run_study(study: Study, folder: StudyFolder, workers: int | None = None, sch
                     bar.update(1)
                     bar.set_postfix(failed=fails, refresh=False)
                 fut.release()
+            if cluster is not None and len(futures) - ran - skipped_now < n_workers - len(retired):
+                _retire_idle(client, cluster, retired)
     finally:
         if bar is not None:
             bar.close()

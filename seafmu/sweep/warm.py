@@ -2,7 +2,8 @@
 
 Dask imports this module in each worker process it starts (``LocalCluster(preload=...)``) and calls
 ``dask_setup`` before the worker takes tasks. It ignores SIGINT (a Ctrl-C in the terminal reaches
-the whole process group; the parent stops the study and closes the workers), then runs the base
+the whole process group; the parent stops the study and closes the workers), keeps Dask's logging
+to errors as the parent does, then runs the base
 scenario for a few steps: the imports, the FMUs' unpacking and first instantiation and the compiled
 kernels' loading, which would otherwise fall on each worker's first case, happen while the parent
 is still validating the cases. A warm-up that fails is ignored: the cases then report the problem
@@ -13,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import logging
 import os
 import signal
 from typing import Any
@@ -35,6 +37,9 @@ def warm_up(scenario: str) -> None:
 def dask_setup(worker: Any) -> None:
     with contextlib.suppress(ValueError):  # not the main thread: dask runs preloads in it
         signal.signal(signal.SIGINT, signal.SIG_IGN)
+    # as the parent's cluster (silence_logs): errors only, so a worker closed at the study's tail
+    # does not print Dask's INFO lines into the terminal
+    logging.getLogger("distributed").setLevel(logging.ERROR)
     scenario = os.environ.get(WARMUP_ENV)
     if scenario:
         with contextlib.suppress(Exception):
