@@ -4,12 +4,15 @@
 plan's residuals are not white: a velocity differentiated from position fixes (Savitzky-Golay over
 15 % of the release) carries noise correlated over tens of samples, and the 1-DOF model's misfit
 (whatever of the held DOFs' motion the file's model does not remove) is slow. The white-noise
-interval was then 3-10 times too narrow (supply X_u +0.10 % outside +-0.06 %). Two estimates that
-do not assume whiteness, the wider one per parameter taken:
+intervals of the supply's X_u, Y_v and N_r all missed the file's values (X_u +0.10 % outside
++-0.06 %); for a straight line under noise correlated like a Savitzky-Golay slope's they hold the
+true slope in a quarter of the records (``tests/test_testplan.py``). Two estimates that do not
+assume whiteness, the wider one per parameter taken:
 
 - **sensor noise, propagated**: ``NOISE_DRAWS`` realisations of the file's sensor noise, processed
   as the measurement was (``measure.noise_draws``), mapped through the fit's linearisation
-  (d theta = J^+ d y): the spread the stated noise alone gives, autocorrelation included;
+  (d theta = J^+ d y): the spread the stated noise alone gives, autocorrelation included; a noise
+  that enters as an input comes in as the model's response to it (``more_draws``);
 - **the residuals, autocorrelation-robust** (Newey-West): (J^T J)^-1 S (J^T J)^-1 with S the
   Bartlett-weighted long-run covariance of the scores J_t r_t, per run, the bandwidth the lag where
   the residuals' autocorrelation has died out (at least the noise's correlation length): what the
