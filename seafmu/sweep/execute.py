@@ -233,25 +233,26 @@ def scheduler_address(scheduler: str | None) -> str | None:
 def _import_for_results() -> None:
     """What cases.parquet and the report import, loaded while the cases run (the parent is idle)."""
     with contextlib.suppress(Exception):
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot
+        import matplotlib.backends.backend_agg
+        import matplotlib.figure  # noqa: F401
         import pandas  # noqa: F401
         import pyarrow.parquet  # noqa: F401
         import scipy.stats  # noqa: F401
 
 
-def _retire_idle(client: Any, cluster: Any, retired: set[str]) -> None:
+def _retire_idle(client: Any, cluster: Any, retired: set[str], left: int) -> None:
     """Close the local workers with nothing left to run (the study's tail: fewer cases left than
     workers), in the background, so their shutdown overlaps the last cases instead of following
     them; ``retired`` gains their addresses. Through the cluster (``scale_down``), so that its final
     close waits for this one instead of racing it."""
     try:
         info = client.scheduler_info()["workers"]
-        idle = [w for w, keys in client.processing().items() if not keys and w not in retired and w in info]
+        held = client.has_what()  # a result not fetched yet stays where it is: its worker is not idle
+        idle = [w for w, keys in client.processing().items()
+                if not keys and not held.get(w) and w not in retired and w in info]
     except Exception:
         return
+    idle = idle[:max(0, len(info) - len(retired) - left)]  # as many workers as cases left stay
     if not idle:
         return
     retired.update(idle)
@@ -262,6 +263,17 @@ def _retire_idle(client: Any, cluster: Any, retired: set[str]) -> None:
             cluster.sync(cluster.scale_down, names)
 
     threading.Thread(target=retire, name="seafmu-sweep-retire", daemon=True).start()
+
+
+def _result(fut: Any, stop: StopRequest) -> dict[str, Any] | None:
+    """A finished case's row; None if a stop is requested while it is being fetched (a fetch
+    never blocks a Ctrl-C)."""
+    while True:
+        try:
+            return fut.result(timeout=1)
+        except TimeoutError:
+            if stop.requested:
+                return None
 
 
 def _closer(client: Any, cluster: Any) -> Callable[[], None]:
@@ -354,7 +366,9 @@ def run_study(study: Study, folder: StudyFolder, workers: int | None = None, sch
                            "error": f"the worker running this case failed ({type(exc).__name__}: "
                                     f"{' '.join(str(exc).split())[:300]})", "wall_time_s": float("nan")}
                 else:
-                    row = fut.result()
+                    row = _result(fut, stop)
+                    if row is None:  # stopped while the result was on its way
+                        break
                 folder.write_row(c, row)
                 rows[c.index] = row
                 ran += 1
@@ -363,8 +377,9 @@ def run_study(study: Study, folder: StudyFolder, workers: int | None = None, sch
                     bar.update(1)
                     bar.set_postfix(failed=fails, refresh=False)
                 fut.release()
-            if cluster is not None and len(futures) - ran - skipped_now < n_workers - len(retired):
-                _retire_idle(client, cluster, retired)
+            left = len(futures) - ran - skipped_now
+            if cluster is not None and 0 < left < n_workers - len(retired):
+                _retire_idle(client, cluster, retired, left)
     finally:
         if bar is not None:
             bar.close()
