@@ -265,6 +265,13 @@ def _retire_idle(client: Any, cluster: Any, retired: set[str], left: int) -> Non
     threading.Thread(target=retire, name="seafmu-sweep-retire", daemon=True).start()
 
 
+def _error_row(c: Case, exc: BaseException) -> dict[str, Any]:
+    """The row of a case whose task failed outside ``run_case`` (its worker process died)."""
+    return {"case": c.index, "key": c.key, "seed": c.seed, **c.inputs, "status": "error",
+            "error": f"the worker running this case failed ({type(exc).__name__}: "
+                     f"{' '.join(str(exc).split())[:300]})", "wall_time_s": float("nan")}
+
+
 def _result(fut: Any, stop: StopRequest) -> dict[str, Any] | None:
     """A finished case's row; None if a stop is requested while it is being fetched (a fetch
     never blocks a Ctrl-C)."""
@@ -361,10 +368,7 @@ def run_study(study: Study, folder: StudyFolder, workers: int | None = None, sch
                     skipped_now += 1
                     continue
                 if fut.status == "error":
-                    exc = fut.exception()
-                    row = {"case": c.index, "key": c.key, "seed": c.seed, **c.inputs, "status": "error",
-                           "error": f"the worker running this case failed ({type(exc).__name__}: "
-                                    f"{' '.join(str(exc).split())[:300]})", "wall_time_s": float("nan")}
+                    row = _error_row(c, fut.exception())
                 else:
                     row = _result(fut, stop)
                     if row is None:  # stopped while the result was on its way
