@@ -45,7 +45,9 @@ SLOW = {
     "test_testplan.py": {"test_hardware_yaw_trial_over_ptys", "test_supply_recovers_published_damping",
                          "test_minerva2_identification_on_short_trials"},
     "test_thruster_loss.py": {"test_lost_thruster_located_in_a_hardware_recording"},
-    "test_sweep.py": {"test_resume_after_interrupt", "test_small_study_on_local_cluster"},
+    "test_sweep.py": {"test_resume_after_interrupt", "test_small_study_on_local_cluster",
+                      "test_study_on_an_existing_scheduler",
+                      "test_case_failing_validation_after_the_cluster_started"},
     "test_run_robustness.py": {
         "test_sigterm_of_a_hardware_run_stops_the_thrusters_and_finishes_the_recording"},
 }
