@@ -23,12 +23,14 @@ import pickle
 import signal
 import subprocess
 import sys
-from collections.abc import Callable, Collection, Iterator
+from collections.abc import Callable, Collection
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from seafmu.outdir import atomic_path  # standard library only: the worker stays light
 
 DPI = 110
 ANGLES = {"roll", "pitch", "yaw"}
@@ -49,19 +51,6 @@ class Series:
         return next((k for k in self.signals if k.split(".", 1)[1] == var), None)
 
 
-@contextlib.contextmanager
-def _atomic_path(path: Path) -> Iterator[Path]:
-    """A temporary name beside ``path``, renamed over it when the block ends without error (the
-    same rule as ``seafmu.outdir.atomic_path``, here without importing seafmu)."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        yield tmp
-        os.replace(tmp, path)
-    finally:
-        with contextlib.suppress(FileNotFoundError):
-            tmp.unlink()
-
-
 def _figure(width: float, height: float) -> Any:
     """A figure on the Agg canvas, outside pyplot: no global figure list, nothing to close."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -74,7 +63,7 @@ def _figure(width: float, height: float) -> Any:
 
 def _save(fig: Any, path: Path) -> None:
     fig.tight_layout()
-    with _atomic_path(path) as tmp:
+    with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=DPI, format="png")
 
 
