@@ -216,6 +216,32 @@ def test_three_effects_are_all_named(tmp_path: Path, seed: int, n_lost: int, buo
     assert d.evidence.startswith("3 effects act together")
 
 
+def test_three_effects_in_a_long_log_where_each_single_fit_wanders(tmp_path: Path) -> None:
+    """A 10 000-sample log (500 s) of Minerva 2 with thruster 2 at 60 %, a 0.1 m/s current and
+    100 N more buoyancy: the baseline takes the buoyancy into a negative heave damping, the current
+    alone is accepted with a roll damping of 1e6 and a current half-way to the thrust loss's, and a
+    pair warm started from it diverges held out. From the baseline the pair converges and grows by
+    the constant force: all three named, with their values."""
+    m2 = load_vessel("minerva2")
+    assert m2.restoring is not None
+    truth = dataclasses.replace(m2, restoring=dataclasses.replace(m2.restoring,
+                                                                  buoyancy=m2.restoring.buoyancy + 100.0))
+    plant = {"thruster_efficiency_2": 0.6, "current_speed": 0.1, "current_direction": 0.8}
+    d = diagnose(_log(tmp_path, "minerva2", 26, plant, 9999 * 0.05, 0.05, truth))
+    _report(d, f"{plant}, buoyancy +100 N")
+    assert sorted(d.effects) == ["constant_force", "current", "thruster_loss"], d.evidence
+    assert d.cause is not None and d.cause.accepted and d.cause.significant
+    assert _lost(d) == {2: pytest.approx(0.6, abs=ETA_TOL)}
+    p = d.extended.params
+    assert p["v_c_north"] == pytest.approx(0.1 * math.cos(0.8), abs=CURRENT_TOL)
+    assert p["v_c_east"] == pytest.approx(0.1 * math.sin(0.8), abs=CURRENT_TOL)
+    assert p["F_0[Z]"] == pytest.approx(-100.0, rel=FORCE_TOL)
+    subs = [c for c in d.candidates if c.fit is not None and c.size == 2
+            and set(c.members()) <= set(d.cause.members())]
+    assert len(subs) == 3 and all(c.fit.nrmse_validation > 1.02 * d.cause.fit.nrmse_validation  # type: ignore[union-attr]
+                                  for c in subs)
+
+
 @pytest.mark.parametrize(("vessel", "seed", "duration", "dt"), [("minerva2", 7, 120.0, 0.05),
                                                                 ("amv_osf", 8, 200.0, 0.1)])
 def test_clean_maneuver_log_names_nothing(tmp_path: Path, vessel: str, seed: int, duration: float,
