@@ -61,35 +61,43 @@ def _case_table(study: Study, done: dict[int, dict[str, Any]]) -> list[str]:
     return [fmt.format(*head), *(fmt.format(*r) for r in rows)]
 
 
-def _build(study: Study) -> None:
-    """Build the base scenario's FMUs once here, before the workers start (they only read them)."""
+def _build(study: Study) -> bool:
+    """Build the base scenario's FMUs if their sources changed (the workers only read them); True if
+    any was rebuilt."""
     from seafmu.build import build_fmu
     from seafmu.scenario import load_scenario
 
     sc = next(iter(study.scenarios.values()), None) or load_scenario(study.scenario_file)
+    rebuilt = False
     for inst in sc.instances:
         if inst.kind is not None and build_fmu(sc.vessel, inst.kind).rebuilt:
             print(f"built {sc.vessel} {inst.kind}")
+            rebuilt = True
+    return rebuilt
 
 
 def _prepare(study: Study, out: Path, workers: int | None, scheduler: str | None) -> Any:
-    """Validate every case, starting the local cluster (returned; None if there is nothing to run
-    or the study runs on an existing scheduler) once the first case is valid, so that its workers
-    spawn and warm up while the rest are validated. A case that does not validate closes it."""
+    """Validate every case, with the local cluster (returned; None if there is nothing to run or the
+    study runs on an existing scheduler) started first, so that its workers spawn, import and warm
+    up (~1.5 s, the start's critical path) while the cases are validated. A case that does not
+    validate closes it; an FMU rebuilt meanwhile restarts it (a worker may have loaded the old one)."""
     from seafmu.sweep.execute import StudyFolder, default_workers, scheduler_address, start_local_cluster
 
-    validate_cases(study, study.cases[:1])  # most mistakes show in the first case: no cluster for them
-    _build(study)
     done = StudyFolder(out).finished(study) if out.is_dir() else {}
-    todo = len(study.cases) - len(done)
-    cluster = None
-    if todo and scheduler_address(scheduler) is None:
-        cluster = start_local_cluster(min(workers or default_workers(), todo), study.scenario_file)
+    n = min(workers or default_workers(), len(study.cases) - len(done))
+    local = n > 0 and scheduler_address(scheduler) is None
+    cluster = start_local_cluster(n, study.scenario_file) if local else None
     try:
+        validate_cases(study, study.cases[:1])
+        if _build(study) and cluster is not None:
+            cluster.close(timeout=10)
+            cluster = None
+            cluster = start_local_cluster(n, study.scenario_file)
         validate_cases(study, study.cases[1:])
     except BaseException:
         if cluster is not None:
-            cluster.close(timeout=10)
+            with contextlib.suppress(Exception):
+                cluster.close(timeout=10)
         raise
     return cluster
 
