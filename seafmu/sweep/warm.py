@@ -7,13 +7,15 @@ to errors as the parent does, then runs the base
 scenario for a few steps: the imports, the FMUs' unpacking and first instantiation and the compiled
 kernels' loading, which would otherwise fall on each worker's first case, happen while the parent
 is still validating the cases. A warm-up that fails is ignored: the cases then report the problem
-with their own one-line errors.
+with their own one-line errors. ``dask_teardown`` (the worker closing) freezes the garbage
+collector, so the process's exit, which the study's end waits for, skips a final collection.
 """
 
 from __future__ import annotations
 
 import contextlib
 import dataclasses
+import gc
 import logging
 import os
 import signal
@@ -44,3 +46,9 @@ def dask_setup(worker: Any) -> None:
     if scenario:
         with contextlib.suppress(Exception):
             warm_up(scenario)
+
+
+def dask_teardown(worker: Any) -> None:
+    # The worker is closing and its process exits next: objects frozen now are left out of the
+    # interpreter's final collection (numba, pandas, Dask: ~0.5 s), which the study's end waits for.
+    gc.freeze()
