@@ -150,7 +150,7 @@ class Result:
 
     x: np.ndarray
     fun: np.ndarray  # (S, R) residuals at x
-    jac: ArrowJacobian  # at x
+    jac: ArrowJacobian | None  # at x; None for final_jac=False (a caller forming its own at x)
     cost: float
     nfev: int
     njev: int
@@ -204,7 +204,7 @@ def _lmpar(ne: Normal, g: np.ndarray, delta: float, par: float) -> tuple[float, 
 
 def levenberg_marquardt(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[[np.ndarray], ArrowJacobian],
                         x0: np.ndarray, max_nfev: int, ftol: float = 1e-8, xtol: float = 1e-8,
-                        gtol: float = 1e-8, factor: float = 100.0) -> Result:
+                        gtol: float = 1e-8, factor: float = 100.0, final_jac: bool = True) -> Result:
     """Minimise ½‖fun(x)‖² (fun: (S, R) residuals) from x0 as MINPACK's lmder does (unit scaling)."""
     x = np.array(x0, dtype=float)
     f = fun(x)
@@ -277,8 +277,8 @@ def levenberg_marquardt(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[[
                 info = 8
             if info or ratio >= 1e-4:
                 break
-    if not J_at_x or J is None:  # scipy returns the Jacobian at the solution
+    if final_jac and (not J_at_x or J is None):  # scipy returns the Jacobian at the solution
         J = jac(x)
         njev += 1
-    return Result(x=x, fun=f, jac=J, cost=0.5 * fnorm * fnorm, nfev=nfev, njev=njev, status=info,
-                  message=MESSAGES[info])
+    return Result(x=x, fun=f, jac=J if final_jac else None, cost=0.5 * fnorm * fnorm, nfev=nfev, njev=njev,
+                  status=info, message=MESSAGES[info])

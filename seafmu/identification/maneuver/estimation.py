@@ -613,16 +613,17 @@ def _output_error_one(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | No
     if inherit:
         w: list[str] = []
         out = _output_error_held(vessel, prep, setup, ls, plant, added_mass, base, max_nfev, w, eff,
-                                 start, inherit, check_hold=True)
+                                 start, inherit, check_hold=True,
+                                 kept=lambda names, p, released: not released)
         if not out[9]["hold_released"]:
             warnings += [*w, f"quadratic damping {', '.join(inherit)} held at 0 (dissipative), as in the fit "
                              "this one starts from (the cost rises when it rises from 0)"]
             return out
         start = {**(start or {}), **dict(zip(out[3], out[4].tolist(), strict=True))}
     out = _output_error_held(vessel, prep, setup, ls, plant, added_mass, base, max_nfev, warnings, eff,
-                             start, {})
+                             start, {}, kept=lambda names, p, released: not _negative_q(names, p))
     names, p = out[3], out[4]
-    neg = {nm: 0.0 for nm, v in zip(names, p, strict=True) if nm.startswith("D_Q[") and v < 0}
+    neg = _negative_q(names, p)
     if not neg:
         return out
     w: list[str] = []
@@ -631,6 +632,11 @@ def _output_error_one(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | No
     warnings += [*w, f"quadratic damping {', '.join(neg)} fitted negative: held at 0 (dissipative) and "
                      "refitted"]
     return again
+
+
+def _negative_q(names: list[str], p: np.ndarray) -> dict[str, float]:
+    """The quadratic damping entries fitted negative, to be held at 0 (dissipative)."""
+    return {nm: 0.0 for nm, v in zip(names, p, strict=True) if nm.startswith("D_Q[") and v < 0}
 
 
 def _hold_released(setup: _SimSetup, hold: dict[str, float], plant: dict[str, np.ndarray], mats: Callable,
@@ -656,10 +662,13 @@ def _output_error_held(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | N
                        plant: dict[str, np.ndarray], added_mass: bool, base: str, max_nfev: int,
                        warnings: list[str], eff: CatalogueEffect | None,
                        start: dict[str, float] | None, hold: dict[str, float],
-                       check_hold: bool = False) -> tuple:
+                       check_hold: bool = False,
+                       kept: Callable[[list[str], np.ndarray, list[str]], bool] | None = None) -> tuple:
     """One output-error fit with the damping entries in ``hold`` (name -> value) kept fixed;
     ``check_hold``: ``info["hold_released"]`` lists the held quadratic entries whose cost falls when
-    they rise from their held value (a bound that is not active)."""
+    they rise from their held value (a bound that is not active). ``kept(names, values, released)``
+    False: the caller refits and reads only names, values and info, so the covariance (a Jacobian on
+    the fine grid) is not computed and cov, ci and corr are None."""
     # Over 80 lines: the parameter layout (model diagonals, added mass, effect parameters, one initial
     # state per segment) is shared by the closures mats/terms/residuals/jac; split apart, each would
     # need the same ten arrays passed in, and the layout would be written in two places.
@@ -817,7 +826,7 @@ def _output_error_held(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | N
     # structure: time and memory linear in the log length (arrowlm)
     if best == 2:  # from a fitted model and its states: near the optimum, or an effect that does not fit
         max_nfev = min(max_nfev, WARM_NFEV)
-    sol = arrowlm.levenberg_marquardt(fun, jac, z0, max_nfev=max_nfev)
+    sol = arrowlm.levenberg_marquardt(fun, jac, z0, max_nfev=max_nfev, final_jac=coarse is None)
     p = sol.x[:npar] * scales
     if not sol.success:
         warnings.append(f"output-error optimiser stopped: {sol.message}")
@@ -826,13 +835,15 @@ def _output_error_held(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | N
                               sol.x[npar:].reshape(S, nx) * x_scale, sol.cost) if check_hold else []
     r = sol.fun[maskd.reshape(S, -1)]  # the compared residuals, in time order
     infl = _autocorr_inflation(r.reshape(-1, d))
-    # s^2 (J^T J)^-1 over model and initial-state parameters (column-scaled pseudo-inverse), model block,
-    # from the Jacobian on the fine grid
-    J = jac(sol.x, fine=True) if coarse is not None else sol.jac
-    n_cols = npar + S * nx
-    cov = float(r @ r) / max(r.size - n_cols, 1) * J.scaled(scales).normal().inverse_pp() * infl
-    ci = fitting.confidence_intervals(names, p, cov, r.size)
-    corr = fitting.correlation_matrix(cov)
+    cov = ci = corr = None
+    if kept is None or kept(names, p, released):
+        # s^2 (J^T J)^-1 over model and initial-state parameters (column-scaled pseudo-inverse), model
+        # block, from the Jacobian on the fine grid
+        J = jac(sol.x, fine=True) if coarse is not None else sol.jac
+        n_cols = npar + S * nx
+        cov = float(r @ r) / max(r.size - n_cols, 1) * J.scaled(scales).normal().inverse_pp() * infl
+        ci = fitting.confidence_intervals(names, p, cov, r.size)
+        corr = fitting.correlation_matrix(cov)
     M, DL, DQ = (a[0] for a in mats(p[None]))
     info = {"oe_nfev": int(sol.nfev), "oe_cost": float(sol.cost), "oe_start_from": start_from,
             "oe_start": dict(zip(names, p0.tolist(), strict=True)), "ci_inflation": infl,
