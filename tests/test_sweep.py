@@ -142,10 +142,11 @@ def test_resume_after_interrupt(tmp_path: Path, built_fmus: object) -> None:
     study = """name: resume
 scenario: base.yaml
 vary:
-  plant.current_speed: {values: [0.0, 0.05, 0.1, 0.15, 0.2, 0.25], unit: m/s}
+  plant.current_speed: {values: [0.0, 0.02, 0.04, 0.06, 0.08, 0.1, 0.12, 0.14, 0.16, 0.18, 0.2, 0.22],
+                       unit: m/s}
 seeds: [4]
 """
-    _write(tmp_path, 12, study)
+    _write(tmp_path, 30, study)  # 12 cases long enough that the interrupt lands while some are left
     rows = tmp_path / "out" / "cases"
     proc = subprocess.Popen([sys.executable, "-m", "seafmu.cli", "sweep", "study.yaml", "--workers", "2",
                              "--out", "out", "-q"], cwd=tmp_path, stdout=subprocess.PIPE,
@@ -159,20 +160,20 @@ seeds: [4]
     assert "sweep interrupted (SIGINT)" in err
     first = {p.name: (p.stat().st_mtime_ns, p.read_bytes()) for p in rows.glob("*.json")}
     k = len(first)
-    assert 2 <= k < 6, "the interrupt came too late to test a resume"
+    assert 2 <= k < 12, "the interrupt came too late to test a resume"
     assert len(pd.read_parquet(tmp_path / "out" / "cases.parquet")) == k
-    (tmp_path / "study.yaml").write_text(study.replace("[0.0, 0.05", "[0.3, 0.0, 0.05"))
+    (tmp_path / "study.yaml").write_text(study.replace("[0.0, 0.02", "[0.3, 0.0, 0.02"))
     again = _sweep(["study.yaml", "--workers", "2", "--out", "out", "-q"], tmp_path)
     assert again.returncode in (0, 1), again.stderr
-    assert f"7 of 7 cases finished ({k} before, {7 - k} now" in again.stdout, again.stdout
+    assert f"13 of 13 cases finished ({k} before, {13 - k} now" in again.stdout, again.stdout
     for p in rows.glob("*.json"):
         if p.name in first:
             assert (p.stat().st_mtime_ns, p.read_bytes()) == first[p.name], f"{p.name} was redone"
     frame = pd.read_parquet(tmp_path / "out" / "cases.parquet")
-    assert frame["case"].tolist() == list(range(7))
-    assert frame["plant.current_speed"].tolist() == [0.3, 0.0, 0.05, 0.1, 0.15, 0.2, 0.25]
+    assert frame["case"].tolist() == list(range(13))
+    assert frame["plant.current_speed"].tolist() == pytest.approx([0.3, *(0.02 * i for i in range(12))])
     third = _sweep(["study.yaml", "--out", "out", "-q"], tmp_path)  # nothing left: no cluster, nothing run
-    assert "(7 before, 0 now)" in third.stdout
+    assert "(13 before, 0 now)" in third.stdout
 
 
 def _descends_from(pid: int, ancestor: int) -> bool:
