@@ -770,30 +770,16 @@ def test_pinv_step_is_its_parts(vessel) -> None:
     camera = np.array([0, 1][: max(1, m - 1)], dtype=np.int64)
     off, zeros_m, zeros_d = np.zeros(m, dtype=bool), np.zeros(m), np.zeros(d)
     tau_idx = np.arange(2, 2 + d, dtype=np.int64)  # tau sits among other inputs
+
+    def rest(out: np.ndarray) -> tuple:
+        """pinv_step's arguments after the input vector, writing into ``out``."""
+        return (tau_idx, P, zeros_d, zeros_m, False, lo, hi, B, p.th, int(p.flags[1]), th.n_max, off, camera,
+                out, pos, k + 1 + m, k + 3 + m, Tc)
+
     for trial in range(20):
         u = rng.normal(size=d + 4) * T_max.mean() * 2
         y, Tc = np.zeros(3 * m + d + 3), np.empty(m)
-        ok = alloc.pinv_step(
-            u,
-            tau_idx,
-            P,
-            zeros_d,
-            zeros_m,
-            False,
-            lo,
-            hi,
-            B,
-            p.th,
-            int(p.flags[1]),
-            th.n_max,
-            off,
-            camera,
-            y,
-            pos,
-            k + 1 + m,
-            k + 3 + m,
-            Tc,
-        )
+        ok = alloc.pinv_step(u, *rest(y))
         assert ok
         tau = u[tau_idx]
         T, Tr, sat = np.empty(m), np.empty(m), np.empty(m, dtype=bool)
@@ -807,27 +793,7 @@ def test_pinv_step_is_its_parts(vessel) -> None:
             bad = u.copy()
             bad[0] = np.nan  # not even one of the tau inputs: every input is checked
             y2 = np.zeros_like(y)
-            assert not alloc.pinv_step(
-                bad,
-                tau_idx,
-                P,
-                zeros_d,
-                zeros_m,
-                False,
-                lo,
-                hi,
-                B,
-                p.th,
-                int(p.flags[1]),
-                th.n_max,
-                off,
-                camera,
-                y2,
-                pos,
-                k + 1 + m,
-                k + 3 + m,
-                Tc,
-            )
+            assert not alloc.pinv_step(bad, *rest(y2))
             assert not y2.any()
 
 

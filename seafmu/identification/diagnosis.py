@@ -576,7 +576,6 @@ MANEUVER_MAX_EFFECTS = 3  # a combination grows by one effect at a time while ea
 # (the fit of the larger one is judged by the rule): one step moves two coupled terms only part of
 # the way (a steady force against the negative heave damping that absorbed it: 0.2065 screened,
 # 0.1993 fitted, against the pair's 0.209), so the rule's ratio is asked of the fit, not of the step.
-GROW_RATIO = 1.0
 
 
 def _maneuver_members(trial: Trial, singles: list[Candidate]) -> tuple[list[Any], dict[int, Candidate]]:
@@ -725,7 +724,7 @@ def _grow(trial: Trial, base: FitResult, cand: Candidate, idx: tuple[int, ...], 
           fitted: list[Candidate], rule: Rule, noise: float) -> Grown | None:
     """One more extension on an accepted combination: every compatible member screened from its fit
     (as the pairs are), the best one fitted if its step beats the combination's own step held out
-    by ``SCREEN_RATIO`` and the combination's fit by ``GROW_RATIO``, then judged against each of
+    by ``SCREEN_RATIO`` and the combination's fit at all, then judged against each of
     its sub-combinations (the missing ones fitted now). Returns the candidates fitted (the larger
     combination first) and its members, or None when no member is promising."""
     from seafmu.identification.maneuver.fit import screen_extensions
@@ -745,7 +744,7 @@ def _grow(trial: Trial, base: FitResult, cand: Candidate, idx: tuple[int, ...], 
         return None
     own, rest = screened[0], screened[1:]
     ok = [sc for sc in rest if _screen_passes(sc, own, _size(members, sc.members, d) - _size(members, idx, d))
-          and sc.nrmse_validation * GROW_RATIO <= cand.fit.nrmse_validation
+          and sc.nrmse_validation <= cand.fit.nrmse_validation
           and not _claim_contradicted(trial, [members[k] for k in sc.members], sc.start, noise)]
     if not ok:
         return None
