@@ -469,6 +469,39 @@ def test_arrow_levenberg_marquardt_follows_minpack(max_nfev: int) -> None:
     np.testing.assert_allclose(got.jac.normal().inverse_pp(), full[:2, :2], rtol=1e-8)
 
 
+def test_arrow_levenberg_marquardt_with_a_bound_never_reached_is_unchanged() -> None:
+    fun, jac, _, z0 = _arrow_problem()
+    free = arrowlm.levenberg_marquardt(fun, jac, z0, max_nfev=40)
+    bounded = arrowlm.levenberg_marquardt(fun, jac, z0, max_nfev=40, lower=np.array([-5.0, -5.0]))
+    assert min(free.x[:2]) > -5.0
+    assert np.array_equal(bounded.x, free.x) and bounded.nfev == free.nfev and bounded.status == free.status
+
+
+@pytest.mark.parametrize("lower", [[1.0, -np.inf], [-np.inf, 0.4], [1.0, 0.4]])
+def test_arrow_levenberg_marquardt_keeps_lower_bounds(lower: list[float]) -> None:
+    """A bound the free minimum lies beyond: the fit ends on it, at the minimum within the bounds
+    (scipy's bounded trust-region fit of the same problem), and no iterate leaves the bounds."""
+    fun, jac, dense, z0 = _arrow_problem()
+    free = arrowlm.levenberg_marquardt(fun, jac, z0, max_nfev=200)
+    lo = np.array(lower)
+    assert np.any(free.x[:2] < lo)  # the bound is active
+    seen: list[np.ndarray] = []
+
+    def watched(z: np.ndarray) -> np.ndarray:
+        seen.append(z[:2].copy())
+        return fun(z)
+
+    got = arrowlm.levenberg_marquardt(watched, jac, z0, max_nfev=200, lower=lo)
+    assert all(np.all(z >= lo) for z in seen)
+    ref = least_squares(lambda z: fun(z).ravel(), np.maximum(z0, np.r_[lo, np.full(z0.size - 2, -np.inf)]),
+                        jac=dense, bounds=(np.r_[lo, np.full(z0.size - 2, -np.inf)], np.inf), method="trf",
+                        x_scale=1.0, ftol=1e-12, xtol=1e-12, gtol=1e-12)
+    assert got.success and got.cost == pytest.approx(ref.cost, rel=1e-6)
+    active = free.x[:2] < lo
+    assert np.all(got.x[:2][active] == lo[active])  # on the bound exactly
+    np.testing.assert_allclose(got.x, ref.x, atol=1e-4)
+
+
 def _timed_fit(data, vessel) -> tuple[float, float]:  # type: ignore[no-untyped-def]
     """Seconds (best of three) and tracemalloc peak MB of an output-error fit."""
     times = []

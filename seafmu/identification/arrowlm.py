@@ -20,6 +20,12 @@ x_scale=1.0)`` runs: the same trust region, the same λ search (``lmpar``: safeg
 max_nfev counting function evaluations) and the same messages. It solves the normal equations
 instead of a pivoted QR of J; the results equal MINPACK's to the optimiser's tolerance
 (tests/test_ident_robustness.py compares both on problems small enough for the dense solver).
+
+Lower bounds on model parameters (``lower``: a damping entry that must stay dissipative) are kept
+inside the iteration, as a projected Levenberg-Marquardt (Kanzow, Yamashita & Fukushima 2004): a
+parameter at its bound whose gradient pushes it further out is fixed for that iteration (the
+step is solved over the others), the step is projected onto the bounds, and it is judged by the
+decrease its own linear model predicts. A bound never reached leaves every iterate as without it.
 """
 
 from __future__ import annotations
@@ -204,9 +210,19 @@ def _lmpar(ne: Normal, g: np.ndarray, delta: float, par: float) -> tuple[float, 
 
 def levenberg_marquardt(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[[np.ndarray], ArrowJacobian],
                         x0: np.ndarray, max_nfev: int, ftol: float = 1e-8, xtol: float = 1e-8,
-                        gtol: float = 1e-8, factor: float = 100.0, final_jac: bool = True) -> Result:
-    """Minimise ½‖fun(x)‖² (fun: (S, R) residuals) from x0 as MINPACK's lmder does (unit scaling)."""
+                        gtol: float = 1e-8, factor: float = 100.0, final_jac: bool = True,
+                        lower: np.ndarray | None = None) -> Result:
+    """Minimise ½‖fun(x)‖² (fun: (S, R) residuals) from x0 as MINPACK's lmder does (unit scaling).
+
+    ``lower``: a lower bound for each of the first ``len(lower)`` entries of x (the model
+    parameters; −inf where free); x0 is projected onto them and every iterate stays within them
+    (``_free_normal``, ``_projected``)."""
+    # Over 80 lines: MINPACK's lmder loop, kept in one piece so that it can be read against the
+    # Fortran line by line (step, ratio, radius update, the eight termination tests).
     x = np.array(x0, dtype=float)
+    lo = None if lower is None or not np.any(np.isfinite(lower)) else np.asarray(lower, dtype=float)
+    if lo is not None:
+        x[: lo.size] = np.maximum(x[: lo.size], lo)
     f = fun(x)
     nfev, njev = 1, 0
     fnorm = float(np.linalg.norm(f))
@@ -218,7 +234,7 @@ def levenberg_marquardt(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[[
         J = jac(x)
         njev += 1
         J_at_x = True
-        ne = J.normal(f)
+        ne, free = _free_normal(J, f, x, lo)
         g = ne.g
         cn = ne.col_norms
         if it == 1:
@@ -234,21 +250,30 @@ def levenberg_marquardt(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[[
             break
         while True:
             par, step = _lmpar(ne, g, delta, par)
-            pnorm = float(np.linalg.norm(step))
+            if free is not None:
+                step = _expand(step, free, x.size)
+            pnorm = float(np.linalg.norm(step))  # the trust region's measure: the step before projection
+            x_new, clipped = _projected(x, step, lo)
+            if clipped:
+                step = x_new - x
             if it == 1:
                 delta = min(delta, pnorm)
-            x_new = x + step
             f_new = fun(x_new)
             nfev += 1
             fnorm1 = float(np.linalg.norm(f_new))
             actred = 1.0 - (fnorm1 / fnorm) ** 2 if 0.1 * fnorm1 < fnorm else -1.0
             t1 = float(np.linalg.norm(J.matvec(step))) / fnorm
-            t2 = math.sqrt(par) * pnorm / fnorm
-            prered = t1 * t1 + t2 * t2 / 0.5
-            dirder = -(t1 * t1 + t2 * t2)
-            ratio = actred / prered if prered != 0.0 else 0.0
+            if clipped:  # the projected step's own linear model: 1 - ‖f + J s‖² / ‖f‖²
+                gs = float(_full_gradient(J, f) @ step) / fnorm**2
+                prered = -2.0 * gs - t1 * t1
+                dirder = gs
+            else:
+                t2 = math.sqrt(par) * pnorm / fnorm
+                prered = t1 * t1 + t2 * t2 / 0.5
+                dirder = -(t1 * t1 + t2 * t2)
+            ratio = actred / prered if prered > 0.0 else 0.0
             if ratio <= 0.25:
-                temp = 0.5 if actred >= 0.0 else 0.5 * dirder / (dirder + 0.5 * actred)
+                temp = 0.5 if actred >= 0.0 or dirder > 0.0 else 0.5 * dirder / (dirder + 0.5 * actred)
                 if 0.1 * fnorm1 >= fnorm or temp < 0.1:
                     temp = 0.1
                 delta = temp * min(delta, pnorm / 0.1)
@@ -261,7 +286,7 @@ def levenberg_marquardt(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[[
                 xnorm = float(np.linalg.norm(x))
                 it += 1
                 J_at_x = False
-            if abs(actred) <= ftol and prered <= ftol and 0.5 * ratio <= 1.0:
+            if abs(actred) <= ftol and abs(prered) <= ftol and 0.5 * ratio <= 1.0:
                 info = 1
             if delta <= xtol * xnorm:
                 info = 3 if info == 1 else 2
@@ -269,7 +294,7 @@ def levenberg_marquardt(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[[
                 break
             if nfev >= max_nfev:
                 info = 5
-            if abs(actred) <= _EPS and prered <= _EPS and 0.5 * ratio <= 1.0:
+            if abs(actred) <= _EPS and abs(prered) <= _EPS and 0.5 * ratio <= 1.0:
                 info = 6
             if delta <= _EPS * xnorm:
                 info = 7
@@ -282,3 +307,46 @@ def levenberg_marquardt(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[[
         njev += 1
     return Result(x=x, fun=f, jac=J if final_jac else None, cost=0.5 * fnorm * fnorm, nfev=nfev, njev=njev,
                   status=info, message=MESSAGES[info])
+
+
+def _full_gradient(J: ArrowJacobian, f: np.ndarray) -> np.ndarray:
+    """Jᵀf over every entry of z."""
+    return np.concatenate([np.einsum("srk,sr->k", J.Jp, f), np.einsum("srj,sr->sj", J.Jx, f).ravel()])
+
+
+def _free_normal(J: ArrowJacobian, f: np.ndarray, x: np.ndarray,
+                 lo: np.ndarray | None) -> tuple[Normal, np.ndarray | None]:
+    """The normal equations over the entries free in this iteration, and their indices in z (None:
+    all): an entry at its lower bound whose gradient Jᵀf is positive (the cost falls as it goes
+    below) is left out, so the step keeps it where it is."""
+    if lo is None:
+        return J.normal(f), None
+    at = np.flatnonzero(x[: lo.size] <= lo)
+    if at.size:
+        P = J.Jp.shape[2]
+        g_at = np.einsum("srk,sr->k", J.Jp[:, :, at], f)
+        fixed = at[g_at > 0.0]
+        if fixed.size:
+            keep = np.setdiff1d(np.arange(P), fixed)
+            ne = ArrowJacobian(np.ascontiguousarray(J.Jp[:, :, keep]), J.Jx).normal(f)
+            return ne, np.concatenate([keep, np.arange(P, x.size)])
+    return J.normal(f), None
+
+
+def _expand(step: np.ndarray, free: np.ndarray, n: int) -> np.ndarray:
+    """A step over the free entries as a step over all of z (zero for the fixed ones)."""
+    out = np.zeros(n)
+    out[free] = step
+    return out
+
+
+def _projected(x: np.ndarray, step: np.ndarray, lo: np.ndarray | None) -> tuple[np.ndarray, bool]:
+    """x + step with the bounded entries raised to their bounds; and whether any was."""
+    x_new = x + step
+    if lo is None:
+        return x_new, False
+    below = x_new[: lo.size] < lo
+    if not np.any(below):
+        return x_new, False
+    x_new[: lo.size] = np.where(below, lo, x_new[: lo.size])
+    return x_new, True

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import copy
 import hashlib
-from collections.abc import Callable
 from contextlib import AbstractContextManager
 from dataclasses import dataclass
 from typing import Any
@@ -502,24 +501,37 @@ def _screen_from(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup, plant: d
 # costs a fraction of the fine simulations. The covariance uses the fine-grid Jacobian at the solution.
 JAC_COARSEN = (4, 2)
 JAC_MAX_H = 0.2
+# The coarse grid's residuals may differ from the fine grid's by at most this fraction of their norm
+# for its Jacobian to be used (measured: 0.04-0.7 % on the benchmark's logs; a stiff model, RK4 unstable
+# on the coarse step, 10^3-10^4 times the norm)
+COARSE_MISMATCH = 0.05
 
 
 def _coarse_sim(setup: _SimSetup) -> tuple[_Simulator, int] | None:
-    """The setup's simulator on every c-th sample (c from ``JAC_COARSEN``), same segments and
-    starts; RK4 midpoints at the fine samples halfway (c even). None when no c fits."""
+    """The setup's simulator on every c-th sample (the first c of ``JAC_COARSEN`` that fits), same
+    segments and starts; RK4 midpoints at the fine samples halfway (c even). None when no c fits."""
+    levels = _coarse_sims(setup)
+    return levels[0] if levels else None
+
+
+def _coarse_sims(setup: _SimSetup) -> list[tuple[_Simulator, int]]:
+    """The setup's simulator on every c-th sample for each c of ``JAC_COARSEN`` that fits (the
+    coarsest first)."""
     sim = setup.sim
     L = sim.length
-    c = next((c for c in JAC_COARSEN if L % c == 0 and L >= 4 * c and c * sim.h <= JAC_MAX_H + 1e-12), 0)
-    if not c:
-        return None
-    co = copy.copy(sim)
-    co.length, co.h = L // c, sim.h * c
-    co.tau, co.tau_mid = sim.tau[:, ::c], sim.tau[:, c // 2 :: c]
-    if sim.psi is not None:
-        co.psi, co.psi_mid = sim.psi[:, ::c], sim.psi[:, c // 2 :: c]
-    if sim.thrust is not None:
-        co.thrust, co.thrust_mid = sim.thrust[:, ::c], sim.thrust[:, c // 2 :: c]
-    return co, c
+    out = []
+    for c in JAC_COARSEN:
+        if not (L % c == 0 and L >= 4 * c and c * sim.h <= JAC_MAX_H + 1e-12):
+            continue
+        co = copy.copy(sim)
+        co.length, co.h = L // c, sim.h * c
+        co.tau, co.tau_mid = sim.tau[:, ::c], sim.tau[:, c // 2 :: c]
+        if sim.psi is not None:
+            co.psi, co.psi_mid = sim.psi[:, ::c], sim.psi[:, c // 2 :: c]
+        if sim.thrust is not None:
+            co.thrust, co.thrust_mid = sim.thrust[:, ::c], sim.thrust[:, c // 2 :: c]
+        out.append((co, c))
+    return out
 
 
 def _interp_rows(Rc: np.ndarray, c: int) -> np.ndarray:
@@ -604,71 +616,31 @@ def _output_error_one(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | No
                       warnings: list[str], eff: CatalogueEffect | None,
                       start: dict[str, float] | None) -> tuple:
     """One output-error fit, with the effect object ``eff``'s parameters (or none). Quadratic
-    damping is dissipative: a diagonal entry fitted negative is held at 0 and the fit repeated
-    (an active set; a short, slow log cannot tell v from v|v| and trades one against the other).
-    Started from a fitted model (the diagnosis's extensions, from the baseline), the fit starts with
-    the entries that model held (``_recall_holds``) still held, and frees them only where the cost
-    falls when one rises from 0 (the bound is then not active): one fit instead of two."""
+    damping is dissipative: each fitted diagonal entry is bounded below by 0 inside the iteration
+    (``arrowlm``'s projected step: an active set, so one fit where holding entries fitted negative
+    took two; a short, slow log cannot tell v from v|v| and trades one against the other). An
+    entry that ends at 0 is reported held there, said in a warning, and the covariance is the free
+    entries'. Started from a fitted model (the diagnosis's extensions, from the baseline), the
+    entries that model held (``_recall_holds``) start at 0."""
     inherit = _recall_holds(_log_key(setup), start) if setup is not None else {}
     if inherit:
-        w: list[str] = []
-        out = _output_error_held(vessel, prep, setup, ls, plant, added_mass, base, max_nfev, w, eff,
-                                 start, inherit, check_hold=True,
-                                 kept=lambda names, p, released: not released)
-        if not out[9]["hold_released"]:
-            warnings += [*w, f"quadratic damping {', '.join(inherit)} held at 0 (dissipative), as in the fit "
-                             "this one starts from (the cost rises when it rises from 0)"]
-            return out
-        start = {**(start or {}), **dict(zip(out[3], out[4].tolist(), strict=True))}
+        start = {**inherit, **(start or {})}
     out = _output_error_held(vessel, prep, setup, ls, plant, added_mass, base, max_nfev, warnings, eff,
-                             start, {}, kept=lambda names, p, released: not _negative_q(names, p))
-    names, p = out[3], out[4]
-    neg = _negative_q(names, p)
-    if not neg:
-        return out
-    w: list[str] = []
-    again = _output_error_held(vessel, prep, setup, ls, plant, added_mass, base, max_nfev, w, eff,
-                               {**(start or {}), **dict(zip(names, p.tolist(), strict=True))}, neg)
-    warnings += [*w, f"quadratic damping {', '.join(neg)} fitted negative: held at 0 (dissipative) and "
-                     "refitted"]
-    return again
-
-
-def _negative_q(names: list[str], p: np.ndarray) -> dict[str, float]:
-    """The quadratic damping entries fitted negative, to be held at 0 (dissipative)."""
-    return {nm: 0.0 for nm, v in zip(names, p, strict=True) if nm.startswith("D_Q[") and v < 0}
-
-
-def _hold_released(setup: _SimSetup, hold: dict[str, float], plant: dict[str, np.ndarray], mats: Callable,
-                   terms: Callable, p: np.ndarray, x0: np.ndarray, cost: float) -> list[str]:
-    """The held quadratic damping entries whose fitting cost falls when each rises from its held
-    value by a hundredth of its scale (the vessel file's, at least 1e-3 of the mass): bounds that
-    are not active. One batched simulation from the fit's parameters ``p`` and segment states."""
-    keys = [k for k in hold if k.startswith("D_Q[")]
-    if not keys:
-        return []
-    P = np.repeat(p[None], len(keys), axis=0)
-    M, DL, DQ = mats(P)
-    for j, k in enumerate(keys):
-        i = int(k[k.index("[") + 1 : k.index(",")])
-        DQ[j, i, i] = hold[k] + 1e-2 * max(float(plant["D_Q"][i, i]), 1e-3 * float(plant["M"][i, i]))
-    r = _sim_residual(setup, M, DL, DQ, np.repeat(x0[None], len(keys), axis=0), **terms(P))
-    r = np.where(setup.mask[None, :, :, None], np.where(np.isfinite(r), r, 1e3), 0.0)
-    costs = 0.5 * np.sum(r.reshape(len(keys), -1) ** 2, axis=1)
-    return [k for k, c in zip(keys, costs.tolist(), strict=True) if c < cost]
+                             start, {})
+    at = out[9]["held_at_bound"]
+    if at:
+        warnings.append(f"quadratic damping {', '.join(at)} held at 0 (dissipative): the fit would take "
+                        f"{'it' if len(at) == 1 else 'them'} below 0")
+    return out
 
 
 def _output_error_held(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | None, ls: _LSResult,
                        plant: dict[str, np.ndarray], added_mass: bool, base: str, max_nfev: int,
                        warnings: list[str], eff: CatalogueEffect | None,
-                       start: dict[str, float] | None, hold: dict[str, float],
-                       check_hold: bool = False,
-                       kept: Callable[[list[str], np.ndarray, list[str]], bool] | None = None) -> tuple:
-    """One output-error fit with the damping entries in ``hold`` (name -> value) kept fixed;
-    ``check_hold``: ``info["hold_released"]`` lists the held quadratic entries whose cost falls when
-    they rise from their held value (a bound that is not active). ``kept(names, values, released)``
-    False: the caller refits and reads only names, values and info, so the covariance (a Jacobian on
-    the fine grid) is not computed and cov, ci and corr are None."""
+                       start: dict[str, float] | None, hold: dict[str, float]) -> tuple:
+    """One output-error fit with the damping entries in ``hold`` (name -> value) kept fixed and the
+    fitted quadratic entries bounded below by 0: those that end there are left out of the names,
+    values and covariance, as held (``info["held_at_bound"]``)."""
     # Over 80 lines: the parameter layout (model diagonals, added mass, effect parameters, one initial
     # state per segment) is shared by the closures mats/terms/residuals/jac; split apart, each would
     # need the same ten arrays passed in, and the layout would be written in two places.
@@ -751,7 +723,7 @@ def _output_error_held(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | N
         """The effect's terms for the simulator (its object's ``maneuver_terms``: F0, vc)."""
         return eff.maneuver_terms(P[:, e0:]) if eff is not None else {}
 
-    coarse = _coarse_sim(setup)
+    coarse = _coarse_sims(setup)  # the Jacobian's grids, coarsest first (``jac``)
 
     def residuals(Z: np.ndarray) -> np.ndarray:
         """Residuals per segment (K, S, R) for several scaled parameter sets, R = (L + 1) d rows
@@ -763,16 +735,23 @@ def _output_error_held(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | N
         r *= maskd
         return r.reshape(P.shape[0], S, -1)
 
-    def coarse_sensitivities(Z: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def coarse_sensitivities(Z: np.ndarray, cols: np.ndarray, co: _Simulator,
+                             c: int) -> tuple[np.ndarray, np.ndarray] | None:
         """(Z[k] - Z[0]) / cols[k - 1] differences of the residuals, simulated on the coarse grid and
         differenced there, then interpolated to the fine grid straight into the Jacobian's blocks
-        (S, R, P) and (S, R, nx): one pass over the fine-grid arrays."""
-        assert coarse is not None
-        co, c = coarse
+        (S, R, P) and (S, R, nx): one pass over the fine-grid arrays. None where the coarse grid's
+        residuals at Z[0] differ from the fine grid's (``fun``'s last, at the same point) by more
+        than ``COARSE_MISMATCH`` of their norm: a stiff model (a large damping, a coarse step
+        beyond RK4's stability) whose coarse sensitivities would mislead the step."""
         P = Z[:, :npar] * scales
         x = co.run(*mats(P), Z[:, npar:].reshape(-1, S, nx) * x_scale, **terms(P))
         rc = (x[..., -d:] - setup.meas[None, :, ::c]) / setup.scale  # (K, S, Lc + 1, d)
         np.nan_to_num(rc, copy=False, nan=1e3, posinf=1e3, neginf=1e3)
+        if last and np.array_equal(last[0], Z[0]):
+            m = mask[:, ::c, None]
+            rf = last[1].reshape(S, -1, d)[:, ::c] * m
+            if np.sum(((rc[0] - rf) * m) ** 2) > COARSE_MISMATCH**2 * np.sum(rf**2):
+                return None
         D = ((rc[1:] - rc[0]) / cols[:, None, None, None]).transpose(1, 2, 3, 0)  # (S, Lc + 1, d, K - 1)
         out = []
         for blk in (D[..., :npar], D[..., npar:]):
@@ -781,8 +760,14 @@ def _output_error_held(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | N
             out.append(J.reshape(S, -1, blk.shape[-1]))
         return out[0], out[1]
 
+    last: list[np.ndarray] = []  # fun's last point and residuals (where the LM asks for the Jacobian)
+    fine_jac: list = []  # the last fine-grid Jacobian and its point (the covariance's, where the fit ended)
+    level = [0]  # the coarsest grid not found misleading in this fit (``coarse_sensitivities``)
+
     def fun(z: np.ndarray) -> np.ndarray:
-        return residuals(z[None])[0]
+        r = residuals(z[None])[0]
+        last[:] = [z.copy(), r]
+        return r
 
     def jac(z: np.ndarray, fine: bool = False) -> arrowlm.ArrowJacobian:
         """Finite differences in one batched simulation: one run per model parameter, and one
@@ -796,19 +781,26 @@ def _output_error_held(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | N
         hx = 1e-6
         for j in range(nx):
             Z[1 + npar + j, npar + j :: nx] += hx
-        if not fine and coarse is not None:
-            cols = np.concatenate([step[:npar], np.full(nx, hx)])
-            return arrowlm.ArrowJacobian(*coarse_sensitivities(Z, cols))
+        while not fine and level[0] < len(coarse):  # a grid found misleading is not used again
+            got = coarse_sensitivities(Z, np.concatenate([step[:npar], np.full(nx, hx)]), *coarse[level[0]])
+            if got is not None:
+                return arrowlm.ArrowJacobian(*got)
+            level[0] += 1
+        if fine_jac and np.array_equal(fine_jac[0], z):
+            return fine_jac[1]
         R = residuals(Z)
         Jp = ((R[1 : 1 + npar] - R[0]) / step[:npar, None, None]).transpose(1, 2, 0)
         Jx = ((R[1 + npar :] - R[0]) / hx).transpose(1, 2, 0)
-        return arrowlm.ArrowJacobian(np.ascontiguousarray(Jp), np.ascontiguousarray(Jx))
+        J = arrowlm.ArrowJacobian(np.ascontiguousarray(Jp), np.ascontiguousarray(Jx))
+        fine_jac[:] = [z.copy(), J]
+        return J
 
     # start from the LS diagonal, unless the vessel file's values simulate the trial better
     # (a poorly exciting log gives an LS model that may not even be stable)
     p_file = np.concatenate([np.diag(plant["D_L"])[fL], np.diag(plant["D_Q"])[fQ]]
                             + ([np.diag(plant["M"])] if added_mass else []) + [np.array(absent, dtype=float)])
     x0z = (x0_meas / x_scale).ravel()
+    p0[nL : nL + nQ] = np.maximum(p0[nL : nL + nQ], 0.0)  # within the bound the fit keeps
     z_ls, z_file = np.concatenate([p0 / scales, x0z]), np.concatenate([p_file / scales, x0z])
     starts = [z_ls, z_file]
     log_key = _log_key(setup)
@@ -826,27 +818,36 @@ def _output_error_held(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | N
     # structure: time and memory linear in the log length (arrowlm)
     if best == 2:  # from a fitted model and its states: near the optimum, or an effect that does not fit
         max_nfev = min(max_nfev, WARM_NFEV)
-    sol = arrowlm.levenberg_marquardt(fun, jac, z0, max_nfev=max_nfev, final_jac=coarse is None)
-    p = sol.x[:npar] * scales
+    lower = np.full(npar, -np.inf)
+    lower[nL : nL + nQ] = 0.0  # quadratic damping is dissipative (the scales are positive)
+    sol = arrowlm.levenberg_marquardt(fun, jac, z0, max_nfev=max_nfev, final_jac=not coarse, lower=lower)
+    p_all = sol.x[:npar] * scales
     if not sol.success:
         warnings.append(f"output-error optimiser stopped: {sol.message}")
-    _remember_states(log_key, names, p, sol.x[npar:].reshape(S, nx) * x_scale, hold, float(sol.cost))
-    released = _hold_released(setup, hold, plant, mats, terms, sol.x[:npar] * scales,
-                              sol.x[npar:].reshape(S, nx) * x_scale, sol.cost) if check_hold else []
+    # the quadratic entries the bound stopped: held at 0 from here on (names, values, covariance)
+    at = [k for k in range(nL, nL + nQ) if sol.x[k] <= 0.0]
+    keep = np.setdiff1d(np.arange(npar), at)
+    held_now = {names[k]: 0.0 for k in at}
+    names_all, names = names, [names[k] for k in keep]
+    p = p_all[keep]
+    _remember_states(log_key, names, p, sol.x[npar:].reshape(S, nx) * x_scale, {**hold, **held_now},
+                     float(sol.cost))
     r = sol.fun[maskd.reshape(S, -1)]  # the compared residuals, in time order
     infl = _autocorr_inflation(r.reshape(-1, d))
-    cov = ci = corr = None
-    if kept is None or kept(names, p, released):
-        # s^2 (J^T J)^-1 over model and initial-state parameters (column-scaled pseudo-inverse), model
-        # block, from the Jacobian on the fine grid
-        J = jac(sol.x, fine=True) if coarse is not None else sol.jac
-        n_cols = npar + S * nx
-        cov = float(r @ r) / max(r.size - n_cols, 1) * J.scaled(scales).normal().inverse_pp() * infl
-        ci = fitting.confidence_intervals(names, p, cov, r.size)
-        corr = fitting.correlation_matrix(cov)
-    M, DL, DQ = (a[0] for a in mats(p[None]))
+    # s^2 (J^T J)^-1 over the free model and initial-state parameters (column-scaled pseudo-inverse),
+    # model block, from the Jacobian on the fine grid
+    J = jac(sol.x, fine=True) if coarse else sol.jac
+    assert J is not None
+    if at:
+        J = arrowlm.ArrowJacobian(np.ascontiguousarray(J.Jp[:, :, keep]), J.Jx)
+    n_cols = keep.size + S * nx
+    cov = float(r @ r) / max(r.size - n_cols, 1) * J.scaled(scales[keep]).normal().inverse_pp() * infl
+    ci = fitting.confidence_intervals(names, p, cov, r.size)
+    corr = fitting.correlation_matrix(cov)
+    M, DL, DQ = (a[0] for a in mats(p_all[None]))
     info = {"oe_nfev": int(sol.nfev), "oe_cost": float(sol.cost), "oe_start_from": start_from,
-            "oe_start": dict(zip(names, p0.tolist(), strict=True)), "ci_inflation": infl,
+            "oe_start": dict(zip(names_all, p0.tolist(), strict=True)), "ci_inflation": infl,
             "oe_status": sol.message, "effect": None if eff is None else eff.name,
-            "effect_terms": {k: v[0] for k, v in terms(p[None]).items()}, "hold_released": released}
+            "effect_terms": {k: v[0] for k, v in terms(p_all[None]).items()},
+            "held_at_bound": list(held_now)}
     return M, DL, DQ, names, p, cov, ci, corr, r.size, info
