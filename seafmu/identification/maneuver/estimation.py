@@ -499,11 +499,15 @@ def _screen_from(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup, plant: d
 # sensitivities are smooth in time, so interpolating them between coarse samples costs nothing in the
 # fit (the minimum is the fine grid's: the residuals are always simulated on it), and each Jacobian
 # costs a fraction of the fine simulations. The covariance uses the fine-grid Jacobian at the solution.
+# Each segment starts on the coarsest grid that fits and moves to the next finer one (then the fine
+# grid) where it misleads (``COARSE_MISMATCH``).
 JAC_COARSEN = (4, 2)
 JAC_MAX_H = 0.2
-# The coarse grid's residuals may differ from the fine grid's by at most this fraction of their norm
-# for its Jacobian to be used (measured: 0.04-0.7 % on the benchmark's logs; a stiff model, RK4 unstable
-# on the coarse step, 10^3-10^4 times the norm)
+# A segment's coarse-grid residuals may differ from its fine-grid ones by at most this rms (in units of
+# each DOF's measured spread, as the residuals) for its coarse sensitivities to be used; else the next
+# finer grid is used for that segment for the rest of the fit. Measured on the benchmark's logs: 0.0005-
+# 0.01 (RK4's error at the coarse step); a stiff model (a large roll damping: RK4 unstable on the coarse
+# step) 10-1000 in the segments where it moves.
 COARSE_MISMATCH = 0.05
 
 
@@ -531,6 +535,16 @@ def _coarse_sims(setup: _SimSetup) -> list[tuple[_Simulator, int]]:
         if sim.thrust is not None:
             co.thrust, co.thrust_mid = sim.thrust[:, ::c], sim.thrust[:, c // 2 :: c]
         out.append((co, c))
+    return out
+
+
+def _segments(sim: _Simulator, seg: np.ndarray) -> _Simulator:
+    """The simulator of the segments ``seg`` only (their starts, forces, headings and thrusts)."""
+    out = copy.copy(sim)
+    for name in ("x0", "tau", "tau_mid", "psi", "psi_mid", "thrust", "thrust_mid", "idx", "valid"):
+        v = getattr(sim, name, None)
+        if v is not None:
+            setattr(out, name, v[seg])
     return out
 
 
@@ -736,34 +750,45 @@ def _output_error_held(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | N
         r *= maskd
         return r.reshape(P.shape[0], S, -1)
 
-    def coarse_sensitivities(Z: np.ndarray, cols: np.ndarray, co: _Simulator,
-                             c: int) -> tuple[np.ndarray, np.ndarray] | None:
-        """(Z[k] - Z[0]) / cols[k - 1] differences of the residuals, simulated on the coarse grid and
-        differenced there, then interpolated to the fine grid straight into the Jacobian's blocks
-        (S, R, P) and (S, R, nx): one pass over the fine-grid arrays. None where the coarse grid's
-        residuals at Z[0] differ from the fine grid's (``fun``'s last, at the same point) by more
-        than ``COARSE_MISMATCH`` of their norm: a stiff model (a large damping, a coarse step
-        beyond RK4's stability) whose coarse sensitivities would mislead the step."""
+    def sensitivities(Z: np.ndarray, cols: np.ndarray, lv: int,
+                      seg: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(Z[k] - Z[0]) / cols[k - 1] differences of the residuals of the segments ``seg`` on grid
+        ``grids[lv]`` (every c-th sample), differenced there, then interpolated to the fine grid
+        straight into the Jacobian's blocks (s, R, P) and (s, R, nx): one pass over the fine-grid
+        arrays. Also which of the segments are misleading there: their residuals at Z[0] differ
+        from the fine grid's (``fun``'s last, at the same point) by more than ``COARSE_MISMATCH``
+        rms (a stiff model, a coarse step beyond RK4's stability)."""
+        co, c = grids[lv]
+        if seg.size != S:
+            key = (lv, seg.tobytes())
+            if key not in subsets:
+                subsets[key] = _segments(co, seg)
+            co = subsets[key]
         P = Z[:, :npar] * scales
-        x = co.run(*mats(P), Z[:, npar:].reshape(-1, S, nx) * x_scale, **terms(P))
-        rc = (x[..., -d:] - setup.meas[None, :, ::c]) / setup.scale  # (K, S, Lc + 1, d)
+        x = co.run(*mats(P), Z[:, npar:].reshape(-1, S, nx)[:, seg] * x_scale, **terms(P))
+        rc = (x[..., -d:] - setup.meas[None, seg, ::c]) / setup.scale  # (K, s, Lc + 1, d)
         np.nan_to_num(rc, copy=False, nan=1e3, posinf=1e3, neginf=1e3)
-        if last and np.array_equal(last[0], Z[0]):
-            m = mask[:, ::c, None]
-            rf = last[1].reshape(S, -1, d)[:, ::c] * m
-            if np.sum(((rc[0] - rf) * m) ** 2) > COARSE_MISMATCH**2 * np.sum(rf**2):
-                return None
-        D = ((rc[1:] - rc[0]) / cols[:, None, None, None]).transpose(1, 2, 3, 0)  # (S, Lc + 1, d, K - 1)
+        bad = np.zeros(seg.size, dtype=bool)
+        if c > 1 and last and np.array_equal(last[0], Z[0]):
+            m = mask[seg, ::c, None]
+            rf = last[1].reshape(S, -1, d)[seg, ::c]
+            err = np.sum(((rc[0] - rf) * m) ** 2, axis=(1, 2)) / np.maximum(np.sum(m, axis=(1, 2)) * d, 1)
+            bad = err > COARSE_MISMATCH**2
+        D = ((rc[1:] - rc[0]) / cols[:, None, None, None]).transpose(1, 2, 3, 0)  # (s, Lc + 1, d, K - 1)
         out = []
         for blk in (D[..., :npar], D[..., npar:]):
-            J = _interp_rows(np.ascontiguousarray(blk)[None], c)[0]  # (S, L + 1, d, columns)
-            J[unmasked] = 0.0  # the few rows not compared (segment starts, past the log's end)
-            out.append(J.reshape(S, -1, blk.shape[-1]))
-        return out[0], out[1]
+            J = _interp_rows(np.ascontiguousarray(blk)[None], c)[0] if c > 1 else np.array(blk)
+            J[unmasked[seg]] = 0.0  # the few rows not compared (segment starts, past the log's end)
+            out.append(J.reshape(seg.size, -1, blk.shape[-1]))
+        return out[0], out[1], bad
 
     last: list[np.ndarray] = []  # fun's last point and residuals (where the LM asks for the Jacobian)
     fine_jac: list = []  # the last fine-grid Jacobian and its point (the covariance's, where the fit ended)
-    level = [0]  # the coarsest grid not found misleading in this fit (``coarse_sensitivities``)
+    # each segment's grid: the coarsest not found misleading for it in this fit (``sensitivities``);
+    # the fine grid last
+    grids = [*coarse, (setup.sim, 1)]
+    level = np.zeros(S, dtype=int)
+    subsets: dict[tuple[int, bytes], _Simulator] = {}
 
     def fun(z: np.ndarray) -> np.ndarray:
         r = residuals(z[None])[0]
@@ -782,11 +807,22 @@ def _output_error_held(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | N
         hx = 1e-6
         for j in range(nx):
             Z[1 + npar + j, npar + j :: nx] += hx
-        while not fine and level[0] < len(coarse):  # a grid found misleading is not used again
-            got = coarse_sensitivities(Z, np.concatenate([step[:npar], np.full(nx, hx)]), *coarse[level[0]])
-            if got is not None:
-                return arrowlm.ArrowJacobian(*got)
-            level[0] += 1
+        if not fine and coarse:
+            cols = np.concatenate([step[:npar], np.full(nx, hx)])
+            Jp = Jx = None
+            for lv in range(len(grids)):  # a segment misleading on a grid goes to the next, for good
+                seg = np.flatnonzero(level == lv)
+                if not seg.size:
+                    continue
+                jp, jx, bad = sensitivities(Z, cols, lv, seg)
+                if seg.size == S and not bad.any():
+                    return arrowlm.ArrowJacobian(jp, jx)
+                if Jp is None or Jx is None:
+                    Jp, Jx = np.empty((S, jp.shape[1], npar)), np.empty((S, jx.shape[1], nx))
+                Jp[seg], Jx[seg] = jp, jx
+                level[seg[bad]] = lv + 1  # redone on the next grid in this same pass
+            assert Jp is not None and Jx is not None
+            return arrowlm.ArrowJacobian(Jp, Jx)
         if fine_jac and np.array_equal(fine_jac[0], z):
             return fine_jac[1]
         R = residuals(Z)
