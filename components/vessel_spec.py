@@ -7,6 +7,8 @@ fail with one line naming the file and the field.
 
 from __future__ import annotations
 
+import hashlib
+import pickle
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -149,6 +151,26 @@ def bundled_vessels() -> list[str]:
     return sorted(p.stem for p in VESSEL_DIR.glob("*.yaml"))
 
 
+_DOCUMENTS: dict[bytes, bytes] = {}  # the file's digest -> its YAML document, pickled
+_MAX_DOCUMENTS = 32
+
+
+def _document(text: bytes) -> Any:
+    """The YAML document of a vessel file's text, parsed once per distinct text: a sweep validates
+    every case's scenario, each loading the same vessel file, and parsing it is most of the time. Keyed
+    by content (not the file's time, which can stay the same across a quick rewrite); each call gets
+    its own copy (the spec keeps parts of the document)."""
+    key = hashlib.blake2b(text, digest_size=20).digest()
+    raw = _DOCUMENTS.get(key)
+    if raw is not None:
+        return pickle.loads(raw)
+    doc = yaml.load(text, Loader=_LOADER)
+    if len(_DOCUMENTS) >= _MAX_DOCUMENTS:
+        _DOCUMENTS.clear()
+    _DOCUMENTS[key] = pickle.dumps(doc, protocol=pickle.HIGHEST_PROTOCOL)
+    return doc
+
+
 def load_vessel(name_or_path: str | Path) -> VesselSpec:
     path = vessel_path(name_or_path)
     if not path.is_file():
@@ -156,7 +178,7 @@ def load_vessel(name_or_path: str | Path) -> VesselSpec:
             f"vessel '{name_or_path}': no such vessel file {path} (bundled: {', '.join(bundled_vessels())})"
         )
     try:
-        doc = yaml.load(path.read_text(), Loader=_LOADER)
+        doc = _document(path.read_bytes())
     except yaml.YAMLError as exc:
         raise VesselFileError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
     if not isinstance(doc, dict):

@@ -290,8 +290,11 @@ def _callbacks() -> Any:
 # whose lock it can take has no living owner (this works across PID namespaces, unlike PIDs).
 EXTRACT_PREFIX = "seafmu_fmu_"
 _OWNER_LOCK = ".owner.lock"
-_extract_root: Path | None = None
+_extract_root: Path | None = None  # this process's folder (None until it unpacks an FMU)
 _extract_lock_fd: int | None = None
+_extract_owner = 0  # the pid that made _extract_root: a forked child (a sweep's worker forked from a
+# warmed-up server) keeps using the FMUs its parent unpacked, but never removes that folder, and
+# unpacks any other FMU into a folder of its own
 
 
 def sweep_orphaned_extractions(tmp: str | None = None) -> list[Path]:
@@ -318,14 +321,14 @@ def sweep_orphaned_extractions(tmp: str | None = None) -> list[Path]:
 
 
 def _extract_dir() -> Path:
-    global _extract_root, _extract_lock_fd
-    if _extract_root is None:
+    global _extract_root, _extract_lock_fd, _extract_owner
+    if _extract_root is None or _extract_owner != os.getpid():
         sweep_orphaned_extractions()
         root = Path(tempfile.mkdtemp(prefix=EXTRACT_PREFIX))
         fd = os.open(root / _OWNER_LOCK, os.O_RDWR | os.O_CREAT, 0o600)
         fcntl.flock(fd, fcntl.LOCK_EX)
         os.write(fd, f"{os.getpid()}\n".encode())
-        _extract_root, _extract_lock_fd = root, fd
+        _extract_root, _extract_lock_fd, _extract_owner = root, fd, os.getpid()
     return _extract_root
 
 
@@ -341,18 +344,20 @@ def _extract(fmu: Path) -> str:
 
 @atexit.register
 def cleanup_extracted() -> None:
-    """Remove the unpacked FMUs when the process ends (the libraries stay loaded until then).
+    """Remove this process's unpacked FMUs when it ends (the libraries stay loaded until then).
 
     Not earlier: unloading pythonfmu's library and loading it again in the same process makes the
-    next instantiate fail, so a process keeps its unpacked FMUs for later runs.
+    next instantiate fail, so a process keeps its unpacked FMUs for later runs. A forked child
+    leaves its parent's folder alone (the parent removes it).
     """
     global _extract_root, _extract_lock_fd
-    for d in _EXTRACTED.values():
-        shutil.rmtree(d, ignore_errors=True)
-    _EXTRACTED.clear()
-    if _extract_root is not None:
-        shutil.rmtree(_extract_root, ignore_errors=True)
-        _extract_root = None
+    if _extract_root is None or _extract_owner != os.getpid():
+        return
+    for key, d in list(_EXTRACTED.items()):
+        if Path(d).is_relative_to(_extract_root):
+            del _EXTRACTED[key]
+    shutil.rmtree(_extract_root, ignore_errors=True)
+    _extract_root = None
     if _extract_lock_fd is not None:
         os.close(_extract_lock_fd)
         _extract_lock_fd = None

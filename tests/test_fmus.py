@@ -4,6 +4,7 @@ and the same trajectory as the components composed in-process without FMI."""
 from __future__ import annotations
 
 import dataclasses
+import sys
 import zipfile
 from pathlib import Path
 
@@ -57,7 +58,29 @@ def test_fmu_bundles_components(built_fmus: dict) -> None:
     assert not any(n.startswith(("resources/components/", "resources/fmus/")) for n in names)
     assert [n for n in names if n.startswith("resources/minerva2_plant_fmu_")]
     assert "resources/requirements.txt" in names
-    assert not any("__pycache__" in n for n in names)
+
+
+def test_fmu_bytecode_is_checked_hash_of_its_own_sources(built_fmus: dict) -> None:
+    """Every Python file in an FMU has this interpreter's pyc beside it, validated by the source's
+    hash (flags 0b11), so a fresh unpack does not compile the FMU again and a pyc can never be stale;
+    there is no other bytecode (no time-stamped pyc of some earlier source)."""
+    import importlib.util
+
+    with zipfile.ZipFile(built_fmus[("minerva2", "plant")]) as z:
+        names = set(z.namelist())
+        sources = sorted(n for n in names if n.startswith("resources/") and n.endswith(".py"))
+        assert len(sources) > 20
+        expected = set()
+        for src in sources:
+            folder, stem = src.rsplit("/", 1)
+            pyc = f"{folder}/__pycache__/{stem[:-3]}.{sys.implementation.cache_tag}.pyc"
+            expected.add(pyc)
+            assert pyc in names, pyc
+            head = z.read(pyc)[:16]
+            assert head[:4] == importlib.util.MAGIC_NUMBER
+            assert int.from_bytes(head[4:8], "little") == 0b11
+            assert head[8:16] == importlib.util.source_hash(z.read(src))
+        assert {n for n in names if "__pycache__" in n} == expected
 
 
 def _instance(vessel: str, kind: str, params: dict | None = None) -> Instance:

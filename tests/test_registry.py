@@ -190,3 +190,22 @@ def test_no_kind_inference_in_the_gnc_blocks() -> None:
     for name in ("controller.py", "heading_autopilot.py", "allocation.py", "plant.py", "registry.py"):
         text = (COMPONENTS / name).read_text()
         assert not pattern.search(text), (name, pattern.search(text).group(0))
+
+
+def test_a_vessel_file_rewritten_at_once_is_read_again(tmp_path: Path) -> None:
+    """Vessel files are parsed once per distinct text (a sweep validates every case against the same
+    file): a rewrite of the same size in the same instant gives the new values, and changing what a
+    load returned does not reach the next load."""
+    text = (VESSEL_DIR / "minerva2.yaml").read_text()
+    old, new = "n_max: {value: 20.0,", "n_max: {value: 21.0,"
+    assert old in text
+    path = tmp_path / "v.yaml"
+    path.write_text(text)
+    first = load_vessel(path)
+    first.extra["changed by the caller"] = True
+    first.M_RB[0, 0] = -1.0
+    again = load_vessel(path)
+    assert "changed by the caller" not in again.extra and again.M_RB[0, 0] == 2800.0
+    assert np.all(again.thrusters.n_max == 20.0)
+    path.write_text(text.replace(old, new))  # same size, no time passes
+    assert np.all(load_vessel(path).thrusters.n_max == 21.0)

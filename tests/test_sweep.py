@@ -330,6 +330,37 @@ def test_wilson_interval() -> None:
     assert lo == pytest.approx(0.4038, abs=1e-4) and hi == pytest.approx(0.5962, abs=1e-4)
 
 
+@pytest.mark.parametrize("k,n,conf", [(0, 1, 0.95), (0, 40, 0.95), (37, 40, 0.95), (40, 40, 0.9),
+                                      (13, 29, 0.99), (1, 3, 0.5)])
+def test_wilson_interval_equals_scipy(k: int, n: int, conf: float) -> None:
+    """The closed form (written out to keep scipy.stats out of the sweep) is scipy's Wilson interval."""
+    from scipy.stats import binomtest
+
+    from seafmu.sweep.report import wilson
+
+    ci = binomtest(k, n).proportion_ci(confidence_level=conf, method="wilson")
+    assert wilson(k, n, conf) == pytest.approx((ci.low, ci.high), abs=1e-12)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_spearman_equals_scipy(seed: int) -> None:
+    """Rho and its p-value as scipy.stats.spearmanr, with ties (rounded values) and without."""
+    from scipy.stats import spearmanr
+
+    from seafmu.sweep.report import spearman
+
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(4, 60))
+    x = rng.normal(size=n)
+    y = 0.4 * x + rng.normal(size=n)
+    if seed % 2:
+        x, y = np.round(x), np.round(y, 1)
+    res = spearmanr(x, y)
+    rho, p = spearman(x, y)
+    assert rho == pytest.approx(res.statistic, abs=1e-12)
+    assert p == pytest.approx(res.pvalue, rel=1e-9, abs=1e-15)
+
+
 def test_sobol_indices_from_a_saltelli_design(tmp_path: Path) -> None:
     """A value that depends on one input only: that input's first-order and total indices near 1,
     the other's near 0 (SALib on the study's own Saltelli design)."""

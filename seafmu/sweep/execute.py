@@ -31,12 +31,10 @@ import contextlib
 import fcntl
 import json
 import logging
-import multiprocessing
 import os
-import signal
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -45,6 +43,7 @@ import numpy as np
 
 from seafmu.master import StopRequest
 from seafmu.outdir import atomic_path, atomic_write_text
+from seafmu.sweep import forkserver
 from seafmu.sweep.study import Case, Study, StudyError
 from seafmu.sweep.warm import WARMUP_ENV
 from seafmu.sweep.worker import PASS, run_case
@@ -165,27 +164,11 @@ def write_cases(study: Study, folder: StudyFolder, rows: dict[int, dict[str, Any
     return path
 
 
-@contextlib.contextmanager
-def _sigint_ignored() -> Iterator[None]:
-    """Child processes started inside inherit SIGINT ignored (dispositions survive exec)."""
-    try:
-        old = signal.signal(signal.SIGINT, signal.SIG_IGN)
-    except ValueError:  # not the main thread
-        yield
-        return
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, old)
-
-
-SPAWN_WAIT_S = 10.0  # longest the parent ignores SIGINT while the worker processes are spawned
-
-
 def start_local_cluster(workers: int, warmup: Path | None = None) -> Any:
     """A local cluster of ``workers`` processes (one thread each, 127.0.0.1, no dashboard), returned
-    as soon as they are spawned: they import, register and warm up (on ``warmup``, the base
-    scenario) while the caller goes on; tasks submitted meanwhile wait for them."""
+    at once: the processes fork from the warmed-up server (``seafmu.sweep.forkserver``, started
+    here first) and register while the caller goes on; tasks submitted meanwhile wait for them."""
+    forkserver.start(warmup)
     from distributed import LocalCluster
 
     cluster = LocalCluster(n_workers=0, threads_per_worker=1, processes=True, host="127.0.0.1",
@@ -195,12 +178,7 @@ def start_local_cluster(workers: int, warmup: Path | None = None) -> Any:
                            scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
                            env={WARMUP_ENV: str(warmup)} if warmup is not None else {})
     try:
-        with _sigint_ignored():
-            before = len(multiprocessing.active_children())
-            cluster.scale(workers)
-            deadline = time.monotonic() + SPAWN_WAIT_S
-            while len(multiprocessing.active_children()) < before + workers and time.monotonic() < deadline:
-                time.sleep(0.005)
+        cluster.scale(workers)
     except BaseException:
         with contextlib.suppress(Exception):
             cluster.close(timeout=10)
@@ -237,7 +215,6 @@ def _import_for_results() -> None:
         import matplotlib.figure  # noqa: F401
         import pandas  # noqa: F401
         import pyarrow.parquet  # noqa: F401
-        import scipy.stats  # noqa: F401
 
 
 def _retire_idle(client: Any, cluster: Any, retired: set[str], left: int) -> None:

@@ -1,11 +1,16 @@
 """The study report: pass rates with confidence intervals, distributions, inputs against checks,
 sensitivity, and the worst cases with the command that reproduces each one (Markdown + PNG).
 
-Confidence intervals are Wilson score intervals (``scipy.stats.binomtest``), which keep their
-coverage at pass rates near 0 or 1, where a study of a good controller lives. Sensitivity is
-Spearman's rank correlation for any study (monotone, not only linear, effects; categorical inputs
-are left out), and first-order and total Sobol indices (SALib) when the study was sampled for
-them (``sampling.method: saltelli``, no grid inputs, seeds paired or absent).
+Confidence intervals are Wilson score intervals, which keep their coverage at pass rates near 0 or
+1, where a study of a good controller lives. Sensitivity is Spearman's rank correlation for any
+study (monotone, not only linear, effects; categorical inputs are left out), and first-order and
+total Sobol indices (SALib) when the study was sampled for them (``sampling.method: saltelli``, no
+grid inputs, seeds paired or absent).
+
+Both statistics are written out from their closed forms on ``scipy.special`` (``ndtri``, ``stdtr``)
+instead of taken from ``scipy.stats`` (``binomtest``, ``spearmanr``): importing ``scipy.stats``
+costs ~0.7 s of CPU, a tenth of a 40-case study's fixed cost on two cores, for two formulas; the
+tests hold them equal to ``scipy.stats``.
 """
 
 from __future__ import annotations
@@ -29,10 +34,29 @@ def wilson(k: int, n: int, confidence: float = CONFIDENCE) -> tuple[float, float
     """Wilson score interval of a pass rate k/n (nan, nan for n = 0)."""
     if n == 0:
         return math.nan, math.nan
-    from scipy.stats import binomtest
+    from scipy.special import ndtri
 
-    ci = binomtest(k, n).proportion_ci(confidence_level=confidence, method="wilson")
-    return float(ci.low), float(ci.high)
+    z = float(ndtri(0.5 + confidence / 2))
+    p = k / n
+    centre, half = p + z * z / (2 * n), z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n))
+    scale = 1 + z * z / n
+    # the interval holds p exactly (k = 0 or n: a bound at 0 or 1 with no rounding below or above)
+    return max(0.0, min(p, (centre - half) / scale)), min(1.0, max(p, (centre + half) / scale))
+
+
+def spearman(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
+    """(Spearman's rho, two-sided p-value of rho = 0 from Student's t with n - 2 degrees of freedom), as
+    ``scipy.stats.spearmanr``: Pearson's r of the ranks, ties at their mean rank."""
+    import pandas as pd
+    from scipy.special import stdtr
+
+    rx, ry = pd.Series(x).rank().to_numpy(), pd.Series(y).rank().to_numpy()
+    rho = float(np.clip(np.corrcoef(rx, ry)[0, 1], -1.0, 1.0))
+    dof = len(x) - 2
+    if abs(rho) == 1.0:
+        return rho, 0.0
+    t = rho * math.sqrt(dof / ((1 - rho) * (1 + rho)))
+    return rho, float(2 * stdtr(dof, -abs(t)))
 
 
 def check_bounds(study: Study) -> dict[str, tuple[float | None, float | None]]:
@@ -247,8 +271,6 @@ def _plot_maps(frame: Any, a: str, b: str, cols: list[str], path: Path) -> None:
 
 
 def spearman_table(frame: Any, inputs: list[str], cols: list[str]) -> list[list[str]]:
-    from scipy.stats import spearmanr
-
     rows = []
     for col in cols:
         cells = [col.split(": ", 1)[1]]
@@ -259,8 +281,7 @@ def spearman_table(frame: Any, inputs: list[str], cols: list[str]) -> list[list[
             if ok.sum() < 3 or np.ptp(x[ok]) == 0 or np.ptp(y[ok]) == 0:
                 cells.append("—")
                 continue
-            res = spearmanr(x[ok], y[ok])
-            rho, p = float(res.statistic), float(res.pvalue)
+            rho, p = spearman(x[ok], y[ok])
             cells.append(f"**{rho:+.2f}**" if p < 0.05 else f"{rho:+.2f}")
         rows.append(cells)
     return rows

@@ -1,14 +1,17 @@
 """Preload of the local cluster's worker processes: warm a worker up while the study is validated.
 
-Dask imports this module in each worker process it starts (``LocalCluster(preload=...)``) and calls
-``dask_setup`` before the worker takes tasks. It ignores SIGINT (a Ctrl-C in the terminal reaches
-the whole process group; the parent stops the study and closes the workers), keeps Dask's logging
-to errors as the parent does, then runs the base
-scenario for a few steps: the imports, the FMUs' unpacking and first instantiation and the compiled
-kernels' loading, which would otherwise fall on each worker's first case, happen while the parent
-is still validating the cases. A warm-up that fails is ignored: the cases then report the problem
-with their own one-line errors. ``dask_teardown`` (the worker closing) freezes the garbage
-collector, so the process's exit, which the study's end waits for, skips a final collection.
+The workers fork from a server process (``seafmu.sweep.forkserver``) that imports this module first;
+told so by its environment, the server then imports what a worker runs and warms up on the base
+scenario, once for every worker forked from it. Dask also imports this module in each worker
+(``LocalCluster(preload=...)``) and calls ``dask_setup`` before the worker takes tasks. It ignores
+SIGINT (a Ctrl-C in the terminal reaches the whole process group; the parent stops the study and
+closes the workers), keeps Dask's logging to errors as the parent does, and warms up on the base
+scenario unless the server did: a few steps of it, so that the imports, the FMUs' unpacking and
+first instantiation and the compiled kernels' loading, which would otherwise fall on each worker's
+first case, happen while the parent is still validating the cases. A warm-up that fails is
+ignored: the cases then report the problem with their own one-line errors. ``dask_teardown`` (the
+worker closing) freezes the garbage collector, so the process's exit, which the study's end waits
+for, skips a final collection.
 """
 
 from __future__ import annotations
@@ -21,8 +24,11 @@ import os
 import signal
 from typing import Any
 
+from seafmu.sweep.forkserver import SERVER_ENV
+
 WARMUP_ENV = "SEAFMU_SWEEP_WARMUP"  # the base scenario's path, set for the worker processes
 WARMUP_STEPS = 20
+_warmed: set[str] = set()  # scenarios this process (or the server it was forked from) ran already
 
 
 def warm_up(scenario: str) -> None:
@@ -34,6 +40,21 @@ def warm_up(scenario: str) -> None:
     sc = load_scenario(scenario)
     short = dataclasses.replace(sc, duration=WARMUP_STEPS * sc.step, events=[], checks=[])
     run(short, mode="fmu", progress=False)
+    _warmed.add(scenario)
+
+
+def _warm_server(scenario: str) -> None:
+    """In the fork server: import what every worker runs and warm up on ``scenario`` (if any), then
+    freeze the collector so that the forks' collections do not copy the shared pages."""
+    with contextlib.suppress(Exception):  # the server must start whatever happens: workers then warm up
+        import distributed.nanny
+        import distributed.worker  # noqa: F401
+
+        import seafmu.sweep.worker  # noqa: F401
+
+        if scenario:
+            warm_up(scenario)
+    gc.freeze()
 
 
 def dask_setup(worker: Any) -> None:
@@ -43,7 +64,7 @@ def dask_setup(worker: Any) -> None:
     # does not print Dask's INFO lines into the terminal
     logging.getLogger("distributed").setLevel(logging.ERROR)
     scenario = os.environ.get(WARMUP_ENV)
-    if scenario:
+    if scenario and scenario not in _warmed:
         with contextlib.suppress(Exception):
             warm_up(scenario)
 
@@ -52,3 +73,7 @@ def dask_teardown(worker: Any) -> None:
     # The worker is closing and its process exits next: objects frozen now are left out of the
     # interpreter's final collection (numba, pandas, Dask: ~0.5 s), which the study's end waits for.
     gc.freeze()
+
+
+if SERVER_ENV in os.environ:  # imported by the fork server (its preload)
+    _warm_server(os.environ[SERVER_ENV])

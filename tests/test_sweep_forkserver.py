@@ -1,0 +1,137 @@
+"""Sweep workers fork from a warmed-up server: what that changes and what must not change.
+
+- The local cluster's workers are forks of multiprocessing's fork server, which loaded the study's
+  FMUs once; a worker's case runs on them without unpacking its own copy, and gives the same row
+  as a case run in this process.
+- A forked process never removes its parent's unpacked FMUs (the parent's next run still works),
+  unpacks a new FMU into a folder of its own, and removes that one when it ends.
+- A server whose warm-up fails (a scenario that does not load) still serves workers that run cases.
+
+Each runs in a fresh interpreter: the fork server lives as long as the process that started it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from test_sweep import SCENARIO
+
+
+def _python(code: str, cwd: Path, env: dict[str, str] | None = None) -> str:
+    proc = subprocess.run([sys.executable, "-c", code], cwd=cwd, capture_output=True, text=True, timeout=300,
+                          env={**os.environ, **(env or {})})
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return proc.stdout
+
+
+def _base(tmp_path: Path) -> Path:
+    path = tmp_path / "base.yaml"
+    path.write_text(SCENARIO.format(duration=3))
+    return path
+
+
+WORKERS_ARE_FORKS = """
+import json, os, multiprocessing.forkserver as mpfs
+from distributed import Client
+import seafmu.master as m
+from seafmu.scenario import load_scenario
+from seafmu.sweep.execute import start_local_cluster
+from seafmu.sweep.worker import run_case
+
+def where():
+    import seafmu.master as m
+    return {"pid": os.getpid(), "ppid": os.getppid(), "extracted": len(m._EXTRACTED),
+            "own_folder": m._extract_owner == os.getpid()}
+
+cluster = start_local_cluster(2, "base.yaml")
+client = Client(cluster)
+client.wait_for_workers(2)
+task = {"case": 0, "key": "k", "seed": 4, "inputs": {}, "overrides": [], "scenario": "base.yaml",
+        "resolved": None, "metrics": [], "keep": []}
+remote = client.submit(run_case, task, pure=False).result()
+before = client.run(where)
+local = run_case(task)
+client.close(); cluster.close()
+print(json.dumps({"server": mpfs._forkserver._forkserver_pid, "me": os.getpid(),
+                  "workers": list(before.values()), "remote": remote, "local": local}))
+"""
+
+
+def test_workers_fork_from_a_server_that_loaded_the_fmus(tmp_path: Path, built_fmus: object) -> None:
+    _base(tmp_path)
+    out = json.loads(_python(WORKERS_ARE_FORKS, tmp_path).strip().splitlines()[-1])
+    assert len(out["workers"]) == 2 and out["server"] not in (None, out["me"])
+    for w in out["workers"]:
+        assert w["ppid"] == out["server"]  # forked by the server, not started by this process
+        assert w["extracted"] == 4 and not w["own_folder"]  # the server's four unpacked FMUs, no copy
+    skip = {"wall_time_s", "cpu_time_s", "loop_time_s", "run_time_s", "realtime_factor", "started",
+            "finished", "worker"}
+    remote, local = ({k: v for k, v in r.items() if k not in skip} for r in (out["remote"], out["local"]))
+    assert remote["status"] in ("pass", "fail") and remote == local
+
+
+FORKED_CHILD = """
+import json, os, sys
+from pathlib import Path
+import seafmu.master as m
+from seafmu.scenario import load_scenario
+
+sc = load_scenario("base.yaml")
+m.run(sc, mode="fmu", progress=False)
+parent_root = m._extract_root
+pid = os.fork()
+if pid == 0:  # the child: runs on the parent's FMUs, then unpacks one more of its own
+    m.run(sc, mode="fmu", progress=False)
+    shared = m._extract_root == parent_root
+    m._extract(Path(sys.argv[1]))
+    own = m._extract_root
+    Path("child.json").write_text(json.dumps({"shared": shared, "own": str(own),
+                                              "differs": own != parent_root}))
+    sys.exit(0)  # a normal exit: the atexit cleanup runs in the child
+_, status = os.waitpid(pid, 0)
+child = json.loads(Path("child.json").read_text())
+after = {"status": status, "parent_root_kept": parent_root.is_dir(),
+         "child_root_gone": not Path(child["own"]).exists()}
+m.run(sc, mode="fmu", progress=False)  # the parent's FMUs still work
+print(json.dumps({**child, **after, "parent_root": str(parent_root)}))
+"""
+
+
+def test_a_forked_child_leaves_its_parents_fmus_alone(tmp_path: Path, built_fmus: dict) -> None:
+    _base(tmp_path)
+    tmpdir = tmp_path / "tmp"
+    tmpdir.mkdir()
+    extra = built_fmus[("amv_osf", "plant")]
+    code = FORKED_CHILD.replace('sys.argv[1]', repr(str(extra)))
+    out = json.loads(_python(code, tmp_path, {"TMPDIR": str(tmpdir)}).strip().splitlines()[-1])
+    assert out["status"] == 0 and out["shared"] and out["differs"]
+    assert out["parent_root_kept"] and out["child_root_gone"]
+    assert not Path(out["parent_root"]).exists()  # the parent removed its own at its exit
+    assert not list(tmpdir.glob("seafmu_fmu_*"))
+
+
+FAILED_WARMUP = """
+import json, os
+from distributed import Client
+from seafmu.sweep.execute import start_local_cluster
+from seafmu.sweep.worker import run_case
+
+cluster = start_local_cluster(1, "no_such_scenario.yaml")
+client = Client(cluster)
+task = {"case": 0, "key": "k", "seed": 2, "inputs": {}, "overrides": [], "scenario": "base.yaml",
+        "resolved": None, "metrics": [], "keep": []}
+row = client.submit(run_case, task, pure=False).result()
+client.close(); cluster.close()
+print(json.dumps(row))
+"""
+
+
+def test_a_server_whose_warm_up_fails_still_serves_workers(tmp_path: Path, built_fmus: object) -> None:
+    _base(tmp_path)
+    row = json.loads(_python(FAILED_WARMUP, tmp_path).strip().splitlines()[-1])
+    assert row["status"] in ("pass", "fail") and not row["error"] and row["simulated_s"] == pytest.approx(3.0)
