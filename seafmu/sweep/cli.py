@@ -104,7 +104,7 @@ def _prepare(study: Study, out: Path, workers: int | None, scheduler: str | None
 
 def cmd_sweep(args: argparse.Namespace) -> int:
     from seafmu.master import StopRequest, stop_on_signals
-    from seafmu.sweep.execute import StudyFolder, run_study, write_cases
+    from seafmu.sweep.execute import StudyFolder, collector_paused, run_study, write_cases
     from seafmu.sweep.report import write_study_report
 
     if args.workers is not None and args.workers < 1:
@@ -121,7 +121,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         return 0
     stop = StopRequest()
     with stop_on_signals(stop), contextlib.ExitStack() as stack:
-        cluster = _prepare(study, out, args.workers, args.scheduler)  # every case valid before anything runs
+        with collector_paused():  # every case valid before anything runs
+            cluster = _prepare(study, out, args.workers, args.scheduler)
         try:
             folder = stack.enter_context(StudyFolder(out))
             if study.source.resolve() != (out / "study.yaml").resolve():  # what was run, beside its results

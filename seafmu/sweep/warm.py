@@ -44,8 +44,10 @@ def warm_up(scenario: str) -> None:
 
 
 def _warm_server(scenario: str) -> None:
-    """In the fork server: import what every worker runs and warm up on ``scenario`` (if any), then
-    freeze the collector so that the forks' collections do not copy the shared pages."""
+    """In the fork server: import what every worker runs and warm up on ``scenario`` (if any), with
+    the collector paused, then freeze what was made: the forks' collections neither walk it nor copy
+    the shared pages."""
+    gc.disable()
     with contextlib.suppress(Exception):  # the server must start whatever happens: workers then warm up
         import distributed.nanny
         import distributed.worker  # noqa: F401
@@ -55,6 +57,7 @@ def _warm_server(scenario: str) -> None:
         if scenario:
             warm_up(scenario)
     gc.freeze()
+    gc.enable()
 
 
 def dask_setup(worker: Any) -> None:
