@@ -58,8 +58,15 @@ def thrust_to_speed(spec: ThrusterSpec, T: np.ndarray, clip: bool = True) -> np.
 
 
 def max_thrust(spec: ThrusterSpec) -> tuple[np.ndarray, np.ndarray]:
-    """(T_min, T_max) per thruster at -n_max and +n_max; T_min is negative (reverse coefficient)."""
-    return speed_to_thrust(spec, -spec.n_max), speed_to_thrust(spec, spec.n_max)
+    """(T_min, T_max) per thruster at -n_max and +n_max; T_min is negative (reverse coefficient).
+
+    From the law's Python form (``py_func``, the same arithmetic as the compiled one): a scenario's
+    validation asks for these limits, and the first compiled call in a process costs ~0.3 s of
+    numba's start-up, for a handful of multiplications."""
+    f, law = thrust_law.thrust_of.py_func, thrust_law.code(spec.law)
+    n_max = spec.n_max.tolist()
+    return (np.array([f(k, -n, law) for k, n in zip(spec.k_reverse.tolist(), n_max, strict=True)]),
+            np.array([f(k, n, law) for k, n in zip(spec.k_forward.tolist(), n_max, strict=True)]))
 
 
 def speed_rate(spec: ThrusterSpec, n: np.ndarray, n_cmd: np.ndarray) -> np.ndarray:

@@ -15,7 +15,7 @@ from seafmu.components.allocation import allocation_matrix
 from seafmu.components.dynamics import J, coriolis_tensor, restoring_coefficients, rzyx
 from seafmu.components.kernels import alloc, control, ekf, maneuver, rigid_body, waves
 from seafmu.components.reference_model import _exact_coefficients
-from seafmu.components.thrusters import speed_to_thrust, thrust_to_speed, thruster_matrix
+from seafmu.components.thrusters import max_thrust, speed_to_thrust, thrust_to_speed, thruster_matrix
 from seafmu.components.vessel_model import VesselModel
 from seafmu.components.vessel_spec import ANGLE_NAMES, load_vessel
 from seafmu.components.waves import WaveField, load_matrix
@@ -868,6 +868,11 @@ def test_one_thrust_law_definition_for_every_caller() -> None:
         p = np.ascontiguousarray(np.vstack([th.k_forward, th.k_reverse, 1.0 / th.time_constant]))
         rigid_body.thrust(np.ascontiguousarray(n[0]), p, thrust_law.code(th.law), out)
         np.testing.assert_array_equal(out, ref[0])
+        # the limits, from the law's Python form, equal the compiled law at -n_max and +n_max
+        t_min, t_max = max_thrust(th)
+        np.testing.assert_array_equal(t_min, speed_to_thrust(th, -th.n_max))
+        np.testing.assert_array_equal(t_max, speed_to_thrust(th, th.n_max))
+        assert np.all(t_min < 0) and np.all(t_max > 0)
 
 
 # -- the plant's whole step (kernels/plant.py) ---------------------------------------------------

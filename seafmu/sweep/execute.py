@@ -337,8 +337,8 @@ def run_study(study: Study, folder: StudyFolder, workers: int | None = None, sch
     ran = 0
     futures: dict[Any, Case] = {}
     try:
-        n_workers = len(cluster.worker_spec) if cluster is not None else (
-            len(client.scheduler_info().get("workers", {})) or n_workers)
+        if cluster is not None:
+            n_workers = len(cluster.worker_spec)
         for c in todo if not stop.requested else []:  # a signal during the validation: submit nothing
             fut = client.submit(run_case, _task(study, c), key=f"seafmu-case-{c.index}-{c.key}", pure=False)
             futures[fut] = c
@@ -386,5 +386,8 @@ def run_study(study: Study, folder: StudyFolder, workers: int | None = None, sch
             with contextlib.suppress(Exception):
                 client.cancel(pending)
         close = _closer(client, cluster)
+    if cluster is None:  # an existing cluster: the workers that ran this study's cases (some may
+        # register after the study started, others may serve other clients)
+        n_workers = len({rows[c.index].get("worker") for c in futures.values() if c.index in rows})
     return Outcome(len(study.cases), skipped, ran, stop.name if stop.requested else "", rows,
                    time.perf_counter() - t0, n_workers, close)

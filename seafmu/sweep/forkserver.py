@@ -52,9 +52,6 @@ def start(warmup: Path | None) -> None:
     background; a worker's fork waits for it)."""
     import multiprocessing.forkserver
 
-    import dask.config
-
-    dask.config.set({"distributed.worker.multiprocessing-method": METHOD})
     multiprocessing.get_context(METHOD).set_forkserver_preload(PRELOAD)
     before = os.environ.get(SERVER_ENV)
     os.environ[SERVER_ENV] = str(warmup or "")
@@ -66,3 +63,6 @@ def start(warmup: Path | None) -> None:
             os.environ.pop(SERVER_ENV, None)
         else:
             os.environ[SERVER_ENV] = before
+    import dask.config  # after the server started: it warms up meanwhile
+
+    dask.config.set({"distributed.worker.multiprocessing-method": METHOD})
