@@ -11,9 +11,11 @@ bare run (goal <= 10 %): a bare run = the master loop of the same case (``loop_t
 in the same worker at the same time as the case's ``wall_time_s``, so other load on the host
 cancels out. Cases per hour per core are printed to size a cluster.
 
-Before timing, one ``seafmu run`` of the scenario warms the FMU build, the compiled kernels' cache
-and the file cache, so neither worker count pays for them; ``--repeat N`` alternates the order of
-the 1- and 2-worker sweeps N times and reports the median of each.
+Before timing, one ``seafmu run`` of the scenario warms the FMU build, the compiled kernels' cache,
+Python's bytecode cache and the file cache, so neither worker count pays for them (a user's machine
+keeps them; ``PYTHONDONTWRITEBYTECODE``, set on some build hosts, is cleared for the commands
+timed); ``--repeat N`` alternates the order of the 1- and 2-worker sweeps N times and reports the
+median of each.
 
     python benchmarks/bench_sweep.py [--cases 40] [--scenario minerva2_dp] [--duration 300] [--repeat 1]
                                      [--no-sequential]
@@ -47,13 +49,14 @@ def _cpu_children() -> float:
 def _timed(argv: list[str], cwd: Path) -> tuple[float, float, str]:
     """(wall time, CPU time of the command and every process it waited for, e.g. its workers, stdout)."""
     c0, t0 = _cpu_children(), time.perf_counter()
-    proc = subprocess.run(argv, cwd=cwd, capture_output=True, text=True)
+    proc = subprocess.run(argv, cwd=cwd, capture_output=True, text=True, env=ENV)
     dt, cpu = time.perf_counter() - t0, _cpu_children() - c0
     if proc.returncode not in (0, 1):
         sys.exit(f"{shlex.join(argv)} failed ({proc.returncode}): {proc.stderr.strip()[-500:]}")
     return dt, cpu, proc.stdout
 
 
+ENV = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
 Sweep = tuple[float, float, pd.DataFrame, float]
 
 

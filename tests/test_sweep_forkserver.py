@@ -135,3 +135,29 @@ def test_a_server_whose_warm_up_fails_still_serves_workers(tmp_path: Path, built
     _base(tmp_path)
     row = json.loads(_python(FAILED_WARMUP, tmp_path).strip().splitlines()[-1])
     assert row["status"] in ("pass", "fail") and not row["error"] and row["simulated_s"] == pytest.approx(3.0)
+
+
+def test_the_sweep_command_ends_its_server_and_counts_its_workers_cpu(tmp_path: Path,
+                                                                     built_fmus: object) -> None:
+    """When `seafmu sweep` returns, the fork server has ended (its unpacked FMUs are gone, nothing
+    left in the temporary folder) and was waited for: the command's children's CPU time includes
+    every case's CPU time, which the workers (the server's children) spent."""
+    import resource
+
+    import pandas as pd
+
+    _base(tmp_path)
+    (tmp_path / "study.yaml").write_text("name: s\nscenario: base.yaml\nseeds: 4\n")
+    tmpdir = tmp_path / "tmp"
+    tmpdir.mkdir()
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    proc = subprocess.run([sys.executable, "-m", "seafmu.cli", "sweep", "study.yaml", "--workers", "2",
+                           "--out", "out", "-q"], cwd=tmp_path, capture_output=True, text=True, timeout=300,
+                          env={**os.environ, "TMPDIR": str(tmpdir)})
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    assert proc.returncode in (0, 1), proc.stderr
+    assert not list(tmpdir.glob("seafmu_fmu_*"))
+    cpu = (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)
+    cases = pd.read_parquet(tmp_path / "out" / "cases.parquet")
+    assert len(cases) == 4 and cases["worker"].nunique() == 2
+    assert cpu > cases["cpu_time_s"].sum() + 0.5  # the cases, and the parent's and server's own work

@@ -16,6 +16,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from seafmu.sweep import forkserver
 from seafmu.sweep.study import Study, StudyError, load_study, validate_cases
 
 
@@ -133,6 +134,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
             raise
         outcome = run_study(study, folder, workers=args.workers, scheduler=args.scheduler,
                             progress=not args.quiet, stop=stop, cluster=cluster)  # closes the cluster
+        stack.callback(forkserver.stop)  # after the cluster is closed (callbacks run last first)
         stack.callback(outcome.close)
         cases = write_cases(study, folder, outcome.rows)
         report, worst = write_study_report(study, outcome, out)

@@ -13,8 +13,8 @@ worker and seafmu and runs the study's base scenario for a few steps, so the FMU
 loaded and the kernels compiled-in before any worker forks. A worker that finds a different FMU
 (another study in the same process, an FMU rebuilt meanwhile) unpacks and loads it itself, as a
 spawned worker would (``seafmu.master`` keys its unpacked FMUs by file and time; a forked worker
-never removes its parent's folder). One server per process, for its lifetime: it ends when this
-process does.
+never removes its parent's folder). One server per process: ``stop`` ends it once the cluster is closed (the
+sweep command does), else it ends with this process.
 """
 
 from __future__ import annotations
@@ -66,3 +66,19 @@ def start(warmup: Path | None) -> None:
     import dask.config  # after the server started: it warms up meanwhile
 
     dask.config.set({"distributed.worker.multiprocessing-method": METHOD})
+
+
+def stop() -> None:
+    """End this process's fork server, if it has one, and wait for it: its unpacked FMUs are removed
+    before the command returns, and its CPU time, with its workers', counts among this process's
+    children's (``getrusage``), as a spawned worker's did. Call it once the cluster is closed.
+
+    Python has no public call for this; ``ForkServer._stop`` (3.8 to 3.13) closes the server's
+    "alive" pipe, which is how the server learns its parent ended, and waits for it."""
+    import multiprocessing.forkserver
+
+    server = getattr(multiprocessing.forkserver, "_forkserver", None)
+    if getattr(server, "_forkserver_pid", None) is None or not hasattr(server, "_stop"):
+        return
+    with contextlib.suppress(OSError):
+        server._stop()
