@@ -11,18 +11,19 @@
   nothing is lost and nothing done twice; a changed study reruns only the cases it changed.
   ``cases.parquet`` is made from the rows at the end (also after an interruption). The folder is
   locked (flock) while a study runs in it.
-- Start-up: the local cluster is started (``start_local_cluster``) while the study's cases are still
-  being validated; its workers spawn at once and warm up (``seafmu.sweep.warm``: imports, FMUs,
-  compiled kernels) in their own processes meanwhile. Small studies hand each case its scenario
-  as validated, so a worker does not validate it again. Once the cases are out, a background
+- Start-up: the local cluster is started (``start_local_cluster``) while the study's cases are
+  still being validated; its workers fork from a server that warms up meanwhile
+  (``seafmu.sweep.forkserver``, ``seafmu.sweep.warm``: imports, FMUs, compiled kernels, once for
+  all workers). Small studies hand each case its scenario as validated, so a worker does not
+  validate it again. Once the cases are out, a background
   thread imports what cases.parquet and the report need; once they are in, the cluster closes in
   the background while they are written (``Outcome.close``).
 - Stop: SIGINT, SIGTERM and SIGHUP only set a flag (``seafmu.master.stop_on_signals``); the loop
   then cancels the cases not finished, closes the client and the cluster, and keeps every row
-  already written. Worker processes start with SIGINT ignored (inherited from a short window in
-  which the parent ignores it while they are spawned, and set again by their preload), so a Ctrl-C
-  in the terminal (which reaches the whole process group) does not kill them mid-case with
-  tracebacks; the parent closes them.
+  already written. Worker processes start with SIGINT ignored (inherited from their server, which
+  the parent starts with SIGINT ignored, and set again by their preload), so a Ctrl-C in the
+  terminal (which reaches the whole process group) does not kill them mid-case with tracebacks;
+  the parent closes them.
 """
 
 from __future__ import annotations
@@ -333,9 +334,7 @@ def run_study(study: Study, folder: StudyFolder, workers: int | None = None, sch
             with contextlib.suppress(Exception):
                 cluster.close(timeout=10)
         raise
-    bar = None
-    ran = 0
-    futures: dict[Any, Case] = {}
+    bar, ran, futures = None, 0, {}
     try:
         if cluster is not None:
             n_workers = len(cluster.worker_spec)
@@ -386,8 +385,7 @@ def run_study(study: Study, folder: StudyFolder, workers: int | None = None, sch
             with contextlib.suppress(Exception):
                 client.cancel(pending)
         close = _closer(client, cluster)
-    if cluster is None:  # an existing cluster: the workers that ran this study's cases (some may
-        # register after the study started, others may serve other clients)
+    if cluster is None:  # an existing cluster: the workers that ran the cases (one may register late)
         n_workers = len({rows[c.index].get("worker") for c in futures.values() if c.index in rows})
     return Outcome(len(study.cases), skipped, ran, stop.name if stop.requested else "", rows,
                    time.perf_counter() - t0, n_workers, close)
