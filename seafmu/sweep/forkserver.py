@@ -13,8 +13,12 @@ worker and seafmu and runs the study's base scenario for a few steps, so the FMU
 loaded and the kernels compiled-in before any worker forks. A worker that finds a different FMU
 (another study in the same process, an FMU rebuilt meanwhile) unpacks and loads it itself, as a
 spawned worker would (``seafmu.master`` keys its unpacked FMUs by file and time; a forked worker
-never removes its parent's folder). One server per process: ``stop`` ends it once the cluster is closed (the
-sweep command does), else it ends with this process.
+never removes its parent's folder). One server per process: ``stop`` ends it once the cluster is
+closed (the sweep command does), else it ends with this process.
+
+Why forking it is safe where forking this process (Dask's ``fork``) is not: the server is a fresh
+interpreter (started by exec) whose only thread forks, so no lock is held by a thread the fork
+leaves behind.
 """
 
 from __future__ import annotations
