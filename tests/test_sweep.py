@@ -146,7 +146,9 @@ vary:
                        unit: m/s}
 seeds: [4]
 """
-    _write(tmp_path, 30, study)  # 12 cases long enough that the interrupt lands while some are left
+    # 12 cases of ~0.2 s each: the interrupt, sent once two rows are written, lands while some are
+    # left (with workers forked ready from the server, 30 s cases could all finish within 0.4 s)
+    _write(tmp_path, 150, study)
     rows = tmp_path / "out" / "cases"
     proc = subprocess.Popen([sys.executable, "-m", "seafmu.cli", "sweep", "study.yaml", "--workers", "2",
                              "--out", "out", "-q"], cwd=tmp_path, stdout=subprocess.PIPE,
