@@ -135,6 +135,12 @@ def test_worst_case_reproduces_exactly(small: tuple[Path, Done]) -> None:
         assert c["value"] == worst[f"check: {c['name']}"], c["name"]  # exact, not approximate
 
 
+def _default_sigint() -> None:
+    """In the child: SIGINT as from a terminal. Run from a shell's background job (or under nohup)
+    pytest inherits SIGINT ignored, and seafmu keeps an ignored signal ignored."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def test_resume_after_interrupt(tmp_path: Path, built_fmus: object) -> None:
     """SIGINT stops the study cleanly (exit 130, rows kept, cluster closed); the rerun — of the
     study with a value added in front, which renumbers every case — runs only the cases that had
@@ -146,13 +152,11 @@ vary:
                        unit: m/s}
 seeds: [4]
 """
-    # 12 cases of ~0.2 s each: the interrupt, sent once two rows are written, lands while some are
-    # left (with workers forked ready from the server, 30 s cases could all finish within 0.4 s)
-    _write(tmp_path, 150, study)
+    _write(tmp_path, 150, study)  # 12 cases of ~0.2 s: the interrupt lands while some are left
     rows = tmp_path / "out" / "cases"
     proc = subprocess.Popen([sys.executable, "-m", "seafmu.cli", "sweep", "study.yaml", "--workers", "2",
                              "--out", "out", "-q"], cwd=tmp_path, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+                            stderr=subprocess.PIPE, text=True, preexec_fn=_default_sigint)
     deadline = time.monotonic() + 180
     while time.monotonic() < deadline and len(list(rows.glob("*.json")) if rows.is_dir() else []) < 2:
         time.sleep(0.05)
