@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -161,3 +162,43 @@ def test_the_sweep_command_ends_its_server_and_counts_its_workers_cpu(tmp_path: 
     cases = pd.read_parquet(tmp_path / "out" / "cases.parquet")
     assert len(cases) == 4 and cases["worker"].nunique() == 2
     assert cpu > cases["cpu_time_s"].sum() + 0.5  # the cases, and the parent's and server's own work
+
+
+def _default_sigint() -> None:
+    """In the child: SIGINT as from a terminal (pytest may run with it ignored, and seafmu keeps an
+    ignored SIGINT ignored)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+def test_ctrl_c_to_the_whole_process_group(tmp_path: Path, built_fmus: object) -> None:
+    """A Ctrl-C in a terminal reaches every process of the group: the parent, the fork server and
+    the workers forked from it. Only the parent acts on it: exit 130, one line on stderr, no
+    traceback from a worker or the server, the finished rows kept, no process left behind."""
+    import time
+
+    _base(tmp_path)
+    (tmp_path / "base.yaml").write_text(SCENARIO.format(duration=150))
+    (tmp_path / "study.yaml").write_text("name: s\nscenario: base.yaml\nseeds: 12\n")
+    rows = tmp_path / "out" / "cases"
+    proc = subprocess.Popen([sys.executable, "-m", "seafmu.cli", "sweep", "study.yaml", "--workers", "2",
+                             "--out", "out", "-q"], cwd=tmp_path, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            preexec_fn=_default_sigint)
+    deadline = time.monotonic() + 180
+    while time.monotonic() < deadline and len(list(rows.glob("*.json")) if rows.is_dir() else []) < 2:
+        time.sleep(0.05)
+    os.killpg(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    assert err.count("\n") == 1 and err.startswith("seafmu: sweep interrupted (SIGINT)"), err
+    kept = len(list(rows.glob("*.json")))
+    assert 2 <= kept < 12
+    deadline = time.monotonic() + 10  # what is left of the group (exiting children) ends by itself
+    while time.monotonic() < deadline:
+        try:
+            os.killpg(proc.pid, 0)
+        except ProcessLookupError:
+            break
+        time.sleep(0.05)
+    else:
+        pytest.fail("processes of the study are left behind 10 s after it stopped")
