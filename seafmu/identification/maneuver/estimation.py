@@ -619,7 +619,7 @@ def _recall_states(key: str, start: dict[str, float] | None) -> np.ndarray | Non
 
 
 def _recall_holds(key: str, start: dict[str, float] | None) -> dict[str, float]:
-    """The quadratic damping entries the recalled fit (``_recalled``) held at 0, those ``start``
+    """The damping entries the recalled fit (``_recalled``) held at 0, those ``start``
     gives no value of: a fit started from a fitted model starts with its active set."""
     e = _recalled(key, start)
     return {} if e is None else {k: v for k, v in e[4].items() if k not in (start or {})}
@@ -629,10 +629,11 @@ def _output_error_one(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | No
                       plant: dict[str, np.ndarray], added_mass: bool, base: str, max_nfev: int,
                       warnings: list[str], eff: CatalogueEffect | None,
                       start: dict[str, float] | None) -> tuple:
-    """One output-error fit, with the effect object ``eff``'s parameters (or none). Quadratic
-    damping is dissipative: each fitted diagonal entry is bounded below by 0 inside the iteration
-    (``arrowlm``'s projected step: an active set, so one fit where holding entries fitted negative
-    took two; a short, slow log cannot tell v from v|v| and trades one against the other). An
+    """One output-error fit, with the effect object ``eff``'s parameters (or none). Damping is
+    dissipative: each fitted diagonal entry, linear and quadratic, is bounded below by 0 inside the
+    iteration (``arrowlm``'s projected step: an active set, so one fit where holding entries fitted
+    negative took two; a short, slow log cannot tell v from v|v| and trades one against the other,
+    and a short closed-loop log let the linear entries wander negative and name the wrong thruster). An
     entry that ends at 0 is reported held there, said in a warning, and the covariance is the free
     entries'. Started from a fitted model (the diagnosis's extensions, from the baseline), the
     entries that model held (``_recall_holds``) start at 0."""
@@ -643,7 +644,7 @@ def _output_error_one(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | No
                              start, {})
     at = out[9]["held_at_bound"]
     if at:
-        warnings.append(f"quadratic damping {', '.join(at)} held at 0 (dissipative): the fit would take "
+        warnings.append(f"damping {', '.join(at)} held at 0 (dissipative): the fit would take "
                         f"{'it' if len(at) == 1 else 'them'} below 0")
     return out
 
@@ -653,7 +654,7 @@ def _output_error_held(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | N
                        warnings: list[str], eff: CatalogueEffect | None,
                        start: dict[str, float] | None, hold: dict[str, float]) -> tuple:
     """One output-error fit with the damping entries in ``hold`` (name -> value) kept fixed and the
-    fitted quadratic entries bounded below by 0: those that end there are left out of the names,
+    fitted damping entries bounded below by 0: those that end there are left out of the names,
     values and covariance, as held (``info["held_at_bound"]``)."""
     # Over 80 lines: the parameter layout (model diagonals, added mass, effect parameters, one initial
     # state per segment) is shared by the closures mats/terms/residuals/jac; split apart, each would
@@ -837,7 +838,7 @@ def _output_error_held(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | N
     p_file = np.concatenate([np.diag(plant["D_L"])[fL], np.diag(plant["D_Q"])[fQ]]
                             + ([np.diag(plant["M"])] if added_mass else []) + [np.array(absent, dtype=float)])
     x0z = (x0_meas / x_scale).ravel()
-    p0[nL : nL + nQ] = np.maximum(p0[nL : nL + nQ], 0.0)  # within the bound the fit keeps
+    p0[: nL + nQ] = np.maximum(p0[: nL + nQ], 0.0)  # within the bound the fit keeps
     z_ls, z_file = np.concatenate([p0 / scales, x0z]), np.concatenate([p_file / scales, x0z])
     starts = [z_ls, z_file]
     log_key = _log_key(setup)
@@ -856,13 +857,13 @@ def _output_error_held(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | N
     if best == 2:  # from a fitted model and its states: near the optimum, or an effect that does not fit
         max_nfev = min(max_nfev, WARM_NFEV)
     lower = np.full(npar, -np.inf)
-    lower[nL : nL + nQ] = 0.0  # quadratic damping is dissipative (the scales are positive)
+    lower[: nL + nQ] = 0.0  # damping is dissipative (the scales are positive)
     sol = arrowlm.levenberg_marquardt(fun, jac, z0, max_nfev=max_nfev, final_jac=not coarse, lower=lower)
     p_all = sol.x[:npar] * scales
     if not sol.success:
         warnings.append(f"output-error optimiser stopped: {sol.message}")
-    # the quadratic entries the bound stopped: held at 0 from here on (names, values, covariance)
-    at = [k for k in range(nL, nL + nQ) if sol.x[k] <= 0.0]
+    # the damping entries the bound stopped: held at 0 from here on (names, values, covariance)
+    at = [k for k in range(nL + nQ) if sol.x[k] <= 0.0]
     keep = np.setdiff1d(np.arange(npar), at)
     held_now = {names[k]: 0.0 for k in at}
     names_all, names = names, [names[k] for k in keep]
