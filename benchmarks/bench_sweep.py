@@ -46,6 +46,9 @@ def _cpu_children() -> float:
     return r.ru_utime + r.ru_stime
 
 
+ENV = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}  # see the docstring
+
+
 def _timed(argv: list[str], cwd: Path) -> tuple[float, float, str]:
     """(wall time, CPU time of the command and every process it waited for, e.g. its workers, stdout)."""
     c0, t0 = _cpu_children(), time.perf_counter()
@@ -56,7 +59,6 @@ def _timed(argv: list[str], cwd: Path) -> tuple[float, float, str]:
     return dt, cpu, proc.stdout
 
 
-ENV = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
 Sweep = tuple[float, float, pd.DataFrame, float]
 
 

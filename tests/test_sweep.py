@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from test_run_robustness import _default_signals
 
 from seafmu.cli import main
 from seafmu.sweep.study import load_study
@@ -135,12 +136,6 @@ def test_worst_case_reproduces_exactly(small: tuple[Path, Done]) -> None:
         assert c["value"] == worst[f"check: {c['name']}"], c["name"]  # exact, not approximate
 
 
-def _default_sigint() -> None:
-    """In the child: SIGINT as from a terminal. Run from a shell's background job (or under nohup)
-    pytest inherits SIGINT ignored, and seafmu keeps an ignored signal ignored."""
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
-
-
 def test_resume_after_interrupt(tmp_path: Path, built_fmus: object) -> None:
     """SIGINT stops the study cleanly (exit 130, rows kept, cluster closed); the rerun — of the
     study with a value added in front, which renumbers every case — runs only the cases that had
@@ -156,7 +151,7 @@ seeds: [4]
     rows = tmp_path / "out" / "cases"
     proc = subprocess.Popen([sys.executable, "-m", "seafmu.cli", "sweep", "study.yaml", "--workers", "2",
                              "--out", "out", "-q"], cwd=tmp_path, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, preexec_fn=_default_sigint)
+                            stderr=subprocess.PIPE, text=True, preexec_fn=_default_signals)
     deadline = time.monotonic() + 180
     while time.monotonic() < deadline and len(list(rows.glob("*.json")) if rows.is_dir() else []) < 2:
         time.sleep(0.05)

@@ -20,6 +20,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from test_run_robustness import _default_signals
 from test_sweep import SCENARIO
 
 
@@ -164,12 +165,6 @@ def test_the_sweep_command_ends_its_server_and_counts_its_workers_cpu(tmp_path: 
     assert cpu > cases["cpu_time_s"].sum() + 0.5  # the cases, and the parent's and server's own work
 
 
-def _default_sigint() -> None:
-    """In the child: SIGINT as from a terminal (pytest may run with it ignored, and seafmu keeps an
-    ignored SIGINT ignored)."""
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
-
-
 def test_ctrl_c_to_the_whole_process_group(tmp_path: Path, built_fmus: object) -> None:
     """A Ctrl-C in a terminal reaches every process of the group: the parent, the fork server and
     the workers forked from it. Only the parent acts on it: exit 130, one line on stderr, no
@@ -183,7 +178,7 @@ def test_ctrl_c_to_the_whole_process_group(tmp_path: Path, built_fmus: object) -
     proc = subprocess.Popen([sys.executable, "-m", "seafmu.cli", "sweep", "study.yaml", "--workers", "2",
                              "--out", "out", "-q"], cwd=tmp_path, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, start_new_session=True,
-                            preexec_fn=_default_sigint)
+                            preexec_fn=_default_signals)
     deadline = time.monotonic() + 180
     while time.monotonic() < deadline and len(list(rows.glob("*.json")) if rows.is_dir() else []) < 2:
         time.sleep(0.05)

@@ -106,8 +106,9 @@ def _prepare(study: Study, out: Path, workers: int | None, scheduler: str | None
 
 def cmd_sweep(args: argparse.Namespace) -> int:
     from seafmu.master import StopRequest, stop_on_signals
-    from seafmu.sweep.execute import StudyFolder, collector_paused, run_study, write_cases
+    from seafmu.sweep.execute import StudyFolder, run_study, write_cases
     from seafmu.sweep.report import write_study_report
+    from seafmu.sweep.warm import collector_paused
 
     if args.workers is not None and args.workers < 1:
         raise StudyError(f"--workers {args.workers}: must be at least 1")

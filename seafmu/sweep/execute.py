@@ -30,13 +30,12 @@ from __future__ import annotations
 
 import contextlib
 import fcntl
-import gc
 import json
 import logging
 import os
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -47,7 +46,7 @@ from seafmu.master import StopRequest
 from seafmu.outdir import atomic_path, atomic_write_text
 from seafmu.sweep import forkserver
 from seafmu.sweep.study import Case, Study, StudyError
-from seafmu.sweep.warm import WARMUP_ENV
+from seafmu.sweep.warm import WARMUP_ENV, collector_paused
 from seafmu.sweep.worker import PASS, run_case
 
 LOCK_FILE = ".seafmu-sweep.lock"
@@ -208,22 +207,6 @@ def make_client(workers: int | None, scheduler: str | None, cluster: Any = None)
 def scheduler_address(scheduler: str | None) -> str | None:
     """The existing scheduler a study runs on (``--scheduler``, else DASK_SCHEDULER_ADDRESS), or None."""
     return scheduler or os.environ.get("DASK_SCHEDULER_ADDRESS") or None
-
-
-@contextlib.contextmanager
-def collector_paused() -> Iterator[None]:
-    """No garbage collection while a burst of long-lived objects is made (imports, the validation),
-    and those objects frozen after it: the parent holds Dask, seafmu, numba, pandas and matplotlib,
-    hundreds of thousands of objects that every full collection walked again (0.1-0.2 s each, about
-    1 s of a 40-case study's parent) though none of them becomes garbage."""
-    was = gc.isenabled()
-    gc.disable()
-    try:
-        yield
-    finally:
-        gc.freeze()
-        if was:
-            gc.enable()
 
 
 def _import_for_results() -> None:
