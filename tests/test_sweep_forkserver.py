@@ -38,7 +38,7 @@ def _base(tmp_path: Path) -> Path:
 
 
 WORKERS_ARE_FORKS = """
-import json, os, multiprocessing.forkserver as mpfs
+import json, os, sys, multiprocessing.forkserver as mpfs
 from distributed import Client
 import seafmu.master as m
 from seafmu.scenario import load_scenario
@@ -46,13 +46,16 @@ from seafmu.sweep.execute import start_local_cluster
 from seafmu.sweep.worker import run_case
 
 def where():
+    import dask.config
     import seafmu.master as m
     return {"pid": os.getpid(), "ppid": os.getppid(), "extracted": len(m._EXTRACTED),
-            "own_folder": m._extract_owner == os.getpid()}
+            "own_folder": m._extract_owner == os.getpid(),
+            "profiler": dask.config.get("distributed.worker.profile.enabled")}
 
 cluster = start_local_cluster(2, "base.yaml")
 client = Client(cluster)
 client.wait_for_workers(2)
+pandas_at_start = "pandas" in sys.modules  # Dask's own forkserver set-up imports it; ours does not
 task = {"case": 0, "key": "k", "seed": 4, "inputs": {}, "overrides": [], "scenario": "base.yaml",
         "resolved": None, "metrics": [], "keep": []}
 remote = client.submit(run_case, task, pure=False).result()
@@ -60,7 +63,9 @@ before = client.run(where)
 local = run_case(task)
 client.close(); cluster.close()
 print(json.dumps({"server": mpfs._forkserver._forkserver_pid, "me": os.getpid(),
-                  "workers": list(before.values()), "remote": remote, "local": local}))
+                  "preload": mpfs._forkserver._preload_modules,
+                  "workers": list(before.values()), "remote": remote, "local": local,
+                  "pandas_at_start": pandas_at_start}))
 """
 
 
@@ -71,6 +76,9 @@ def test_workers_fork_from_a_server_that_loaded_the_fmus(tmp_path: Path, built_f
     for w in out["workers"]:
         assert w["ppid"] == out["server"]  # forked by the server, not started by this process
         assert w["extracted"] == 4 and not w["own_folder"]  # the server's four unpacked FMUs, no copy
+        assert w["profiler"] is False  # execute.QUIET reached the worker: nothing samples the case's stack
+    # Dask kept the server seafmu started (its preload) and did not import pandas & co. for one of its own
+    assert out["preload"] == ["seafmu.sweep.warm"] and not out["pandas_at_start"]
     skip = {"wall_time_s", "cpu_time_s", "loop_time_s", "run_time_s", "realtime_factor", "started",
             "finished", "worker"}
     remote, local = ({k: v for k, v in r.items() if k not in skip} for r in (out["remote"], out["local"]))

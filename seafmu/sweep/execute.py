@@ -15,8 +15,8 @@
   still being validated; its workers fork from a server that warms up meanwhile
   (``seafmu.sweep.forkserver``, ``seafmu.sweep.warm``: imports, FMUs, compiled kernels, once for
   all workers). Small studies hand each case its scenario as validated, so a worker does not
-  validate it again. Once the cases are out, a background
-  thread imports what cases.parquet and the report need; once they are in, the cluster closes in
+  validate it again. While the workers start, a background thread imports what cases.parquet and
+  the report need; once the cases are in, the cluster closes in
   the background while they are written (``Outcome.close``).
 - Stop: SIGINT, SIGTERM and SIGHUP only set a flag (``seafmu.master.stop_on_signals``); the loop
   then cancels the cases not finished, closes the client and the cluster, and keeps every row
@@ -165,12 +165,27 @@ def write_cases(study: Study, folder: StudyFolder, rows: dict[int, dict[str, Any
     return path
 
 
+# Dask's periodic housekeeping, set for the local cluster (its workers and this process's scheduler and
+# nannies). Each case is pure Python in the worker's task thread, and whatever else runs in the
+# process takes the GIL from it: the worker's statistical profiler (every 10 ms, walking the case's
+# stack, for a dashboard this cluster does not have), the event loops' tick monitors (20 ms), the
+# system monitors (500 ms), the nannies' memory checks (100 ms). Off or slowed, a case takes ~4 %
+# less CPU and, with as many workers as cores, loses ~2 % less to this process
+# (benchmarks/bench_sweep.py). Memory is still checked every second, a blocked loop still reported.
+QUIET = {"distributed.worker.profile.enabled": False, "distributed.admin.tick.interval": "1s",
+         "distributed.admin.system-monitor.interval": "2s",
+         "distributed.worker.memory.monitor-interval": "1s"}
+
+
 def start_local_cluster(workers: int, warmup: Path | None = None) -> Any:
     """A local cluster of ``workers`` processes (one thread each, 127.0.0.1, no dashboard), returned
     at once: the processes fork from the warmed-up server (``seafmu.sweep.forkserver``, started
     here first) and register while the caller goes on; tasks submitted meanwhile wait for them."""
     forkserver.start(warmup)
+    import dask.config
     from distributed import LocalCluster
+
+    dask.config.set(QUIET)  # read by the scheduler and the nannies here, passed by them to the workers
 
     cluster = LocalCluster(n_workers=0, threads_per_worker=1, processes=True, host="127.0.0.1",
                            dashboard_address=None, silence_logs=logging.ERROR, preload=["seafmu.sweep.warm"],
@@ -210,7 +225,9 @@ def scheduler_address(scheduler: str | None) -> str | None:
 
 
 def _import_for_results() -> None:
-    """What cases.parquet and the report import, loaded while the cases run (the parent is idle)."""
+    """What cases.parquet and the report import, loaded while the local cluster's workers start (this
+    process waits for them: they fork from a server still warming up) rather than while the cases
+    run, where it took ~0.4 s of CPU from the workers when they are as many as the cores."""
     with collector_paused(), contextlib.suppress(Exception):
         import matplotlib.backends.backend_agg
         import matplotlib.figure  # noqa: F401
@@ -310,6 +327,7 @@ def run_study(study: Study, folder: StudyFolder, workers: int | None = None, sch
             cluster.close(timeout=10)
         return Outcome(len(study.cases), skipped, 0, "", rows, 0.0, 0)
     n_workers = min(workers or default_workers(), len(todo))
+    threading.Thread(target=_import_for_results, name="seafmu-sweep-imports", daemon=True).start()
     try:
         client, cluster = make_client(n_workers, scheduler, cluster)
     except BaseException:
@@ -324,7 +342,6 @@ def run_study(study: Study, folder: StudyFolder, workers: int | None = None, sch
         for c in todo if not stop.requested else []:  # a signal during the validation: submit nothing
             fut = client.submit(run_case, _task(study, c), key=f"seafmu-case-{c.index}-{c.key}", pure=False)
             futures[fut] = c
-        threading.Thread(target=_import_for_results, name="seafmu-sweep-imports", daemon=True).start()
         if progress:
             from tqdm import tqdm
 
