@@ -50,7 +50,8 @@ def where():
     import seafmu.master as m
     return {"pid": os.getpid(), "ppid": os.getppid(), "extracted": len(m._EXTRACTED),
             "own_folder": m._extract_owner == os.getpid(),
-            "profiler": dask.config.get("distributed.worker.profile.enabled")}
+            "profiler": dask.config.get("distributed.worker.profile.enabled"),
+            "cores": sorted(os.sched_getaffinity(0))}
 
 cluster = start_local_cluster(2, "base.yaml")
 client = Client(cluster)
@@ -77,6 +78,11 @@ def test_workers_fork_from_a_server_that_loaded_the_fmus(tmp_path: Path, built_f
         assert w["ppid"] == out["server"]  # forked by the server, not started by this process
         assert w["extracted"] == 4 and not w["own_folder"]  # the server's four unpacked FMUs, no copy
         assert w["profiler"] is False  # execute.QUIET reached the worker: nothing samples the case's stack
+    cores = sorted(os.sched_getaffinity(0))
+    if len(cores) == 2:  # one worker per core: each pinned to its own (execute._pinning)
+        assert sorted(c for w in out["workers"] for c in w["cores"]) == cores
+    else:
+        assert all(w["cores"] == cores for w in out["workers"])
     # Dask kept the server seafmu started (its preload) and did not import pandas & co. for one of its own
     assert out["preload"] == ["seafmu.sweep.warm"] and not out["pandas_at_start"]
     skip = {"wall_time_s", "cpu_time_s", "loop_time_s", "run_time_s", "realtime_factor", "started",
@@ -205,3 +211,26 @@ def test_ctrl_c_to_the_whole_process_group(tmp_path: Path, built_fmus: object) -
         time.sleep(0.05)
     else:
         pytest.fail("processes of the study are left behind 10 s after it stopped")
+
+
+def test_workers_are_pinned_only_when_there_is_one_per_core(tmp_path: Path) -> None:
+    from seafmu.sweep.execute import _pinning
+    from seafmu.sweep.warm import PIN_ENV
+
+    cores = sorted(os.sched_getaffinity(0))
+    assert _pinning(1) == {} and _pinning(len(cores) + 1) == {}  # fewer or more workers than cores: free
+    assert _pinning(len(cores)) == ({PIN_ENV: ",".join(map(str, cores))} if len(cores) > 1 else {})
+    # in a child (never this process): every thread, and a thread started afterwards, on the named core
+    code = f"""
+import json, os, threading
+from seafmu.sweep.warm import pin
+threading.Thread(target=lambda: threading.Event().wait(2), daemon=True).start()
+pin(3, "{",".join(map(str, cores))}")
+later = []
+t = threading.Thread(target=lambda: later.append(sorted(os.sched_getaffinity(0)))); t.start(); t.join()
+tids = os.listdir("/proc/self/task")
+every = sorted({{c for tid in tids for c in os.sched_getaffinity(int(tid))}})
+print(json.dumps([every, later[0], len(tids)]))
+"""
+    every, later, threads = json.loads(_python(code, tmp_path).strip().splitlines()[-1])
+    assert every == later == [cores[3 % len(cores)]] and threads >= 2

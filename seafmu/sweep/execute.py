@@ -46,7 +46,7 @@ from seafmu.master import StopRequest
 from seafmu.outdir import atomic_path, atomic_write_text
 from seafmu.sweep import forkserver
 from seafmu.sweep.study import Case, Study, StudyError
-from seafmu.sweep.warm import WARMUP_ENV, collector_paused
+from seafmu.sweep.warm import PIN_ENV, WARMUP_ENV, collector_paused
 from seafmu.sweep.worker import PASS, run_case
 
 LOCK_FILE = ".seafmu-sweep.lock"
@@ -177,6 +177,19 @@ QUIET = {"distributed.worker.profile.enabled": False, "distributed.admin.tick.in
          "distributed.worker.memory.monitor-interval": "1s"}
 
 
+def _pinning(workers: int) -> dict[str, str]:
+    """Each worker on a core of its own (``warm.dask_setup`` pins it) when there is one worker per core
+    this process may use, 2 or more. Why: three busy processes on two cores (the workers and this
+    one's scheduler) make Linux move the workers between cores, and a case then takes ~3 % more CPU
+    (cold caches) than alone: benchmarks/bench_sweep.py, 2 workers. Fewer workers than cores (another
+    study may use the rest) stay free to move."""
+    try:
+        cores = sorted(os.sched_getaffinity(0))
+    except AttributeError:  # not Linux
+        return {}
+    return {PIN_ENV: ",".join(map(str, cores))} if 1 < workers == len(cores) else {}
+
+
 def start_local_cluster(workers: int, warmup: Path | None = None) -> Any:
     """A local cluster of ``workers`` processes (one thread each, 127.0.0.1, no dashboard), returned
     at once: the processes fork from the warmed-up server (``seafmu.sweep.forkserver``, started
@@ -192,7 +205,8 @@ def start_local_cluster(workers: int, warmup: Path | None = None) -> Any:
                            # no dashboard; the scheduler's own HTTP routes (health) on a free loopback
                            # port, not on 8787 (taken by any other Dask cluster: a warning)
                            scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
-                           env={WARMUP_ENV: str(warmup)} if warmup is not None else {})
+                           env={**({WARMUP_ENV: str(warmup)} if warmup is not None else {}),
+                                **_pinning(workers)})
     try:
         cluster.scale(workers)
     except BaseException:

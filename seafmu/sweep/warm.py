@@ -28,6 +28,7 @@ from typing import Any
 from seafmu.sweep.forkserver import SERVER_ENV
 
 WARMUP_ENV = "SEAFMU_SWEEP_WARMUP"  # the base scenario's path, set for the worker processes
+PIN_ENV = "SEAFMU_SWEEP_CORES"  # the cores to pin the workers to, one each by name (execute._pinning)
 WARMUP_STEPS = 20
 _warmed: set[str] = set()  # scenarios this process (or the server it was forked from) ran already
 
@@ -75,12 +76,25 @@ def _warm_server(scenario: str) -> None:
             warm_up(scenario)
 
 
+def pin(name: Any, cores: str) -> None:
+    """Every thread of this worker on one of ``cores`` (by the worker's number); threads started later
+    (the one that runs the cases) inherit it. Best effort: a worker left unpinned still runs."""
+    with contextlib.suppress(ValueError, OSError):
+        choices = [int(c) for c in cores.split(",")]
+        core = {choices[int(name) % len(choices)]}
+        for tid in os.listdir("/proc/self/task"):
+            with contextlib.suppress(OSError):  # a thread that just ended
+                os.sched_setaffinity(int(tid), core)
+
+
 def dask_setup(worker: Any) -> None:
     with contextlib.suppress(ValueError):  # not the main thread: dask runs preloads in it
         signal.signal(signal.SIGINT, signal.SIG_IGN)
     # as the parent's cluster (silence_logs): errors only, so a worker closed at the study's tail
     # does not print Dask's INFO lines into the terminal
     logging.getLogger("distributed").setLevel(logging.ERROR)
+    if os.environ.get(PIN_ENV):
+        pin(worker.name, os.environ[PIN_ENV])
     scenario = os.environ.get(WARMUP_ENV)
     if scenario and scenario not in _warmed:
         with contextlib.suppress(Exception):
