@@ -234,3 +234,28 @@ print(json.dumps([every, later[0], len(tids)]))
 """
     every, later, threads = json.loads(_python(code, tmp_path).strip().splitlines()[-1])
     assert every == later == [cores[3 % len(cores)]] and threads >= 2
+
+
+def test_a_local_workers_heartbeat_at_close_is_not_printed(tmp_path: Path) -> None:
+    """The local workers' preload drops Dask's heartbeat ERROR (with its traceback) that a worker
+    logs when the sweep's own scheduler closes under it; other worker errors still print."""
+    code = """
+import io, logging
+from seafmu.sweep.warm import dask_setup
+class Worker:
+    name = 0
+dask_setup(Worker())
+log = logging.getLogger("distributed.worker")
+buf = io.StringIO()
+log.addHandler(logging.StreamHandler(buf))
+try:
+    raise OSError("stream closed")
+except OSError:
+    log.exception("Failed to communicate with scheduler during heartbeat.")
+log.error("Unexpected exception during heartbeat. Closing worker.")
+print(repr(buf.getvalue()))
+"""
+    env = {k: "" for k in ("SEAFMU_SWEEP_WARMUP", "SEAFMU_SWEEP_CORES")}
+    out = _python(code, tmp_path, env).strip().splitlines()[-1]
+    assert "Unexpected exception during heartbeat" in out
+    assert "Failed to communicate" not in out and "stream closed" not in out
