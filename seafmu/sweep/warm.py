@@ -5,7 +5,8 @@ told so by its environment, the server then imports what a worker runs and warms
 scenario, once for every worker forked from it. Dask also imports this module in each worker
 (``LocalCluster(preload=...)``) and calls ``dask_setup`` before the worker takes tasks. It ignores
 SIGINT (a Ctrl-C in the terminal reaches the whole process group; the parent stops the study and
-closes the workers), keeps Dask's logging to errors as the parent does, and warms up on the base
+closes the workers), keeps Dask's logging to errors as the parent does, pins the worker to a core
+of its own when the parent asks (one worker per core: ``execute._pinning``), and warms up on the base
 scenario unless the server did: a few steps of it, so that the imports, the FMUs' unpacking and
 first instantiation and the compiled kernels' loading, which would otherwise fall on each worker's
 first case, happen while the parent is still validating the cases. A warm-up that fails is
@@ -93,7 +94,7 @@ def _heartbeat_at_close(record: logging.LogRecord) -> bool:
     """Drop Dask's "Failed to communicate with scheduler during heartbeat" (an ERROR with a traceback):
     a local worker's scheduler is the sweep's own process, which ends the cluster, and a heartbeat in
     flight while it does (seen once in ~60 sweeps) is no failure; the worker goes on or is closed.
-    A scheduler lost for real still shows in the study, as cases that could not run."""
+    A scheduler lost for real means the sweep's own process is gone, which its user sees anyway."""
     return not record.getMessage().startswith("Failed to communicate with scheduler during heartbeat")
 
 
