@@ -54,12 +54,19 @@ ROWS = "cases"
 SERIES = "timeseries"
 
 
-def default_workers() -> int:
-    """The cores this process may use (affinity, not the machine's count)."""
+def _usable_cores() -> list[int] | None:
+    """The cores this process may use (its affinity, not the machine's count); None where the
+    platform does not say (not Linux)."""
     try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # not Linux
-        return max(1, os.cpu_count() or 1)
+        return sorted(os.sched_getaffinity(0))
+    except AttributeError:
+        return None
+
+
+def default_workers() -> int:
+    """The cores this process may use."""
+    cores = _usable_cores()
+    return max(1, len(cores) if cores is not None else (os.cpu_count() or 1))
 
 
 class StudyFolder:
@@ -183,11 +190,8 @@ def _pinning(workers: int) -> dict[str, str]:
     one's scheduler) make Linux move the workers between cores, and a case then takes ~3 % more CPU
     (cold caches) than alone: benchmarks/bench_sweep.py, 2 workers. Fewer workers than cores (another
     study may use the rest) stay free to move."""
-    try:
-        cores = sorted(os.sched_getaffinity(0))
-    except AttributeError:  # not Linux
-        return {}
-    return {PIN_ENV: ",".join(map(str, cores))} if 1 < workers == len(cores) else {}
+    cores = _usable_cores()
+    return {PIN_ENV: ",".join(map(str, cores))} if cores and 1 < workers == len(cores) else {}
 
 
 def start_local_cluster(workers: int, warmup: Path | None = None) -> Any:
