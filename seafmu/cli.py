@@ -234,6 +234,9 @@ def _add_export(sub: argparse._SubParsersAction) -> None:
 
 
 def _add_sweep(sub: argparse._SubParsersAction) -> None:
+    from seafmu.sweep.forkserver import single_threaded_blas
+
+    single_threaded_blas()  # before seafmu.sweep.cli imports numpy
     from seafmu.sweep.cli import register
 
     register(sub)

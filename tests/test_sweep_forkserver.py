@@ -51,6 +51,8 @@ def where():
     return {"pid": os.getpid(), "ppid": os.getppid(), "extracted": len(m._EXTRACTED),
             "own_folder": m._extract_owner == os.getpid(),
             "profiler": dask.config.get("distributed.worker.profile.enabled"),
+            "blas_threads": [i["num_threads"] for i in __import__("threadpoolctl").threadpool_info()
+                             if i["user_api"] == "blas"],
             "cores": sorted(os.sched_getaffinity(0))}
 
 cluster = start_local_cluster(2, "base.yaml")
@@ -78,6 +80,7 @@ def test_workers_fork_from_a_server_that_loaded_the_fmus(tmp_path: Path, built_f
         assert w["ppid"] == out["server"]  # forked by the server, not started by this process
         assert w["extracted"] == 4 and not w["own_folder"]  # the server's four unpacked FMUs, no copy
         assert w["profiler"] is False  # execute.QUIET reached the worker: nothing samples the case's stack
+        assert w["blas_threads"] and set(w["blas_threads"]) == {1}  # as in a worker Dask spawns itself
     cores = sorted(os.sched_getaffinity(0))
     if len(cores) == 2:  # one worker per core: each pinned to its own (execute._pinning)
         assert sorted(c for w in out["workers"] for c in w["cores"]) == cores
@@ -259,3 +262,72 @@ print(repr(buf.getvalue()))
     out = _python(code, tmp_path, env).strip().splitlines()[-1]
     assert "Unexpected exception during heartbeat" in out
     assert "Failed to communicate" not in out and "stream closed" not in out
+
+
+def test_the_servers_environment_is_the_one_dask_gives_its_workers() -> None:
+    """forkserver.WORKER_ENVIRON is Dask's default for the worker processes its nannies spawn; a
+    forked worker's libraries were loaded in the server, so the server is started with it."""
+    import dask.config
+    import distributed  # noqa: F401  (loads Dask's distributed defaults)
+
+    from seafmu.sweep.forkserver import WORKER_ENVIRON
+
+    dask_default = dask.config.get("distributed.nanny.pre-spawn-environ")
+    assert WORKER_ENVIRON == {k: str(v) for k, v in dask_default.items()}
+
+
+BLAS_OF_THE_COMMAND = """
+import seafmu.cli
+seafmu.cli.build_parser("sweep")  # what `seafmu sweep` does before it runs
+import numpy, scipy.linalg  # the study's validation loads both
+from threadpoolctl import threadpool_info
+print(sorted({i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"}))
+"""
+
+
+def test_the_sweep_command_runs_blas_on_one_thread_unless_told_otherwise(tmp_path: Path) -> None:
+    clean = {k: "" for k in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")}
+    env = {k: v for k, v in os.environ.items() if k not in clean}
+    run = subprocess.run([sys.executable, "-c", BLAS_OF_THE_COMMAND], cwd=tmp_path, capture_output=True,
+                         text=True, timeout=120, env=env)
+    assert run.returncode == 0 and run.stdout.split() == ["[1]"], run.stderr[-2000:]
+    if len(os.sched_getaffinity(0)) > 1:  # the user's own setting is kept
+        told = subprocess.run([sys.executable, "-c", BLAS_OF_THE_COMMAND], cwd=tmp_path, capture_output=True,
+                              text=True, timeout=120, env={**env, "OPENBLAS_NUM_THREADS": "2"})
+        assert told.returncode == 0 and told.stdout.split() == ["[2]"], told.stderr[-2000:]
+
+
+def test_the_server_starts_before_the_study_is_read_when_its_scenario_is_a_file(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """seafmu sweep starts the fork server first thing, on the base scenario as load_study finds it;
+    not for a dry run, an existing scheduler, a shipped scenario's name or a study that does not read."""
+    import argparse
+
+    from seafmu.sweep import cli, forkserver
+    from seafmu.sweep.study import load_study
+
+    started: list[Path | None] = []
+    monkeypatch.setattr(forkserver, "start", started.append)
+    monkeypatch.delenv("DASK_SCHEDULER_ADDRESS", raising=False)
+    (tmp_path / "sub").mkdir()
+    _base(tmp_path / "sub")
+    study = tmp_path / "sub" / "study.yaml"
+    study.write_text("name: s\nscenario: base.yaml\nseeds: 2\n")
+
+    def args(path: Path, **kw: object) -> argparse.Namespace:
+        return argparse.Namespace(**{"study": str(path), "dry_run": False, "scheduler": None, **kw})
+
+    monkeypatch.chdir(tmp_path)
+    cli._early_server(args(study.relative_to(tmp_path)))
+    assert started == [load_study(study, validate=False).scenario_file.resolve()]
+    for kw in ({"dry_run": True}, {"scheduler": "tcp://127.0.0.1:8786"}):
+        cli._early_server(args(study, **kw))
+    monkeypatch.setenv("DASK_SCHEDULER_ADDRESS", "tcp://127.0.0.1:8786")
+    cli._early_server(args(study))
+    monkeypatch.delenv("DASK_SCHEDULER_ADDRESS")
+    for text in ("name: s\nscenario: minerva2_dp\nseeds: 2\n", "name: s\nscenario: nope.yaml\n",
+                 "name: [s\n", "- a list\n"):
+        study.write_text(text)
+        cli._early_server(args(study))
+    cli._early_server(args(tmp_path / "missing.yaml"))
+    assert len(started) == 1

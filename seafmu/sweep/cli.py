@@ -11,13 +11,19 @@ from __future__ import annotations
 import argparse
 import contextlib
 import gc
+import os
 import shutil
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from seafmu.sweep import forkserver
-from seafmu.sweep.study import Study, StudyError, load_study, validate_cases
+
+if TYPE_CHECKING:
+    from seafmu.sweep.study import Study
+
+# What validates the study (numpy, pydantic, seafmu.scenario: ~0.15 s) is imported in the functions
+# that use it, so the fork server can start before it (``_early_server``).
 
 
 def register(sub: Any) -> None:
@@ -41,6 +47,7 @@ def study_path(arg: str) -> Path:
     if p.is_file():
         return p
     from seafmu.scenario import REPO
+    from seafmu.sweep.study import StudyError
 
     shipped = REPO / "studies" / arg / "study.yaml"
     if not p.suffix and shipped.is_file():
@@ -60,6 +67,29 @@ def _case_table(study: Study, done: dict[int, dict[str, Any]]) -> list[str]:
     widths = [max(len(h), *(len(r[i]) for r in rows)) for i, h in enumerate(head)]
     fmt = "  ".join(f"{{:<{w}}}" for w in widths)
     return [fmt.format(*head), *(fmt.format(*r) for r in rows)]
+
+
+def _early_server(args: argparse.Namespace) -> None:
+    """Start the local cluster's fork server (``seafmu.sweep.forkserver``) first thing, warming up on
+    the base scenario as the study file names it, read as YAML alone: its warm-up is the critical
+    path of the first case, and the ~0.15 s of imports that validate the study then run beside it.
+    Only where the study file names a scenario file (a path, relative to the study's folder) and a
+    local cluster will run it; otherwise (a shipped scenario's name, a file that does not read,
+    --dry-run, --scheduler) the server starts with the cluster, after the study is read. A name this
+    gets wrong costs time, never correctness: the server then warmed up on another scenario, and a
+    worker loads the study's FMUs itself."""
+    if args.dry_run or os.environ.get("DASK_SCHEDULER_ADDRESS") or args.scheduler:
+        return
+    from seafmu.yamlfile import read_mapping
+
+    try:
+        study = study_path(args.study)
+        base = Path(read_mapping(study, "study", ValueError)["scenario"])
+    except Exception:  # the study's validation reports whatever is wrong, in one line
+        return
+    base = base if base.is_absolute() else study.parent / base
+    if base.suffix in (".yaml", ".yml") and base.is_file():
+        forkserver.start(base.resolve())
 
 
 def _build(study: Study) -> bool:
@@ -83,6 +113,7 @@ def _prepare(study: Study, out: Path, workers: int | None, scheduler: str | None
     up (~1.3 s, the start's critical path) while the cases are validated. A case that does not
     validate closes it; an FMU rebuilt meanwhile restarts it and its server (they loaded the old one)."""
     from seafmu.sweep.execute import StudyFolder, default_workers, scheduler_address, start_local_cluster
+    from seafmu.sweep.study import validate_cases
 
     done = StudyFolder(out).finished(study) if out.is_dir() else {}
     n = min(workers or default_workers(), len(study.cases) - len(done))
@@ -105,13 +136,20 @@ def _prepare(study: Study, out: Path, workers: int | None, scheduler: str | None
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
+    if args.workers is not None and args.workers < 1:
+        from seafmu.sweep.study import StudyError
+
+        raise StudyError(f"--workers {args.workers}: must be at least 1")
+    _early_server(args)  # stopped with the cluster (``_sweep``), else it ends with this process
+    return _sweep(args)
+
+
+def _sweep(args: argparse.Namespace) -> int:
     from seafmu.master import StopRequest, stop_on_signals
     from seafmu.sweep.execute import StudyFolder, run_study, write_cases
     from seafmu.sweep.report import write_study_report
+    from seafmu.sweep.study import load_study, validate_cases
     from seafmu.sweep.warm import collector_paused
-
-    if args.workers is not None and args.workers < 1:
-        raise StudyError(f"--workers {args.workers}: must be at least 1")
     study = load_study(study_path(args.study), validate=False)
     out = Path(args.out) if args.out else Path("results") / "sweeps" / study.name
     if args.dry_run:

@@ -32,6 +32,39 @@ from pathlib import Path
 METHOD = "forkserver"
 SERVER_ENV = "SEAFMU_SWEEP_SERVER_WARMUP"  # set only in the server's environment: the scenario to warm up on
 PRELOAD = ["seafmu.sweep.warm"]
+# What Dask puts in the environment of every worker process its nannies spawn (its default
+# ``distributed.nanny.pre-spawn-environ``; tests/test_sweep_forkserver.py holds the two equal): one
+# BLAS/OpenMP thread per process, as the cluster runs one process per core, and glibc's trim threshold.
+# A forked worker's libraries are loaded in the server, so it is the server's environment that needs
+# them: without, numpy's and SciPy's OpenBLAS each start a thread per core that spins ~0.1 s at load,
+# on the critical path of the study's start. Not read from Dask's config: importing it first would
+# delay the server by ~0.09 s.
+WORKER_ENVIRON = {"MALLOC_TRIM_THRESHOLD_": "65536", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
+                  "OPENBLAS_NUM_THREADS": "1"}
+BLAS_THREADS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
+
+
+def single_threaded_blas() -> None:
+    """One BLAS/OpenMP thread in this process (the sweep command's) unless its user set others: it runs
+    no large linear algebra, and on a machine whose every core runs a worker the threads BLAS starts
+    at load would take ~0.2 s of CPU from them. Call it before numpy is imported."""
+    for var in BLAS_THREADS:
+        os.environ.setdefault(var, "1")
+
+
+@contextlib.contextmanager
+def _environ(updates: dict[str, str]) -> Iterator[None]:
+    """``updates`` in os.environ inside the block (for a process started there), then as before."""
+    before = {k: os.environ.get(k) for k in updates}
+    os.environ.update(updates)
+    try:
+        yield
+    finally:
+        for k, v in before.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
 
 
 @contextlib.contextmanager
@@ -57,16 +90,8 @@ def start(warmup: Path | None) -> None:
     import multiprocessing.forkserver
 
     multiprocessing.get_context(METHOD).set_forkserver_preload(PRELOAD)
-    before = os.environ.get(SERVER_ENV)
-    os.environ[SERVER_ENV] = str(warmup or "")
-    try:
-        with sigint_ignored():
-            multiprocessing.forkserver.ensure_running()
-    finally:
-        if before is None:
-            os.environ.pop(SERVER_ENV, None)
-        else:
-            os.environ[SERVER_ENV] = before
+    with _environ({**WORKER_ENVIRON, SERVER_ENV: str(warmup or "")}), sigint_ignored():
+        multiprocessing.forkserver.ensure_running()
     import dask.config  # after the server started: it warms up meanwhile
     import distributed.utils
 
