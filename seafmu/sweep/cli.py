@@ -71,14 +71,15 @@ def _case_table(study: Study, done: dict[int, dict[str, Any]]) -> list[str]:
 
 def _early_server(args: argparse.Namespace) -> None:
     """Start the local cluster's fork server (``seafmu.sweep.forkserver``) first thing, warming up on
-    the base scenario as the study file names it, read as YAML alone: its warm-up is the critical
-    path of the first case, and the ~0.15 s of imports that validate the study then run beside it.
-    Only where the study file names a scenario file (a path, relative to the study's folder) and a
-    local cluster will run it; otherwise (a shipped scenario's name, a file that does not read,
-    --dry-run, --scheduler) the server starts with the cluster, after the study is read. A name this
-    gets wrong costs time, never correctness: the server then warmed up on another scenario, and a
-    worker loads the study's FMUs itself."""
-    if args.dry_run or os.environ.get("DASK_SCHEDULER_ADDRESS") or args.scheduler:
+    the base scenario as the study file names it (its YAML read, not validated): its warm-up is the
+    critical path of the first case, and the ~0.15 s of imports that validate the study then run
+    beside it. Only where the study file names a scenario file (a path, relative to the study's
+    folder) and a local cluster will run it; otherwise (a shipped scenario's name, a file that does
+    not read, --dry-run, --scheduler or DASK_SCHEDULER_ADDRESS, as ``execute.scheduler_address``,
+    not imported yet) the server starts with the cluster, after the study is read. A file this reads
+    wrongly costs time, never correctness: the server warmed up on another scenario, and a worker
+    then loads the study's FMUs itself."""
+    if args.dry_run or args.scheduler or os.environ.get("DASK_SCHEDULER_ADDRESS"):
         return
     from seafmu.yamlfile import read_mapping
 
@@ -110,8 +111,9 @@ def _build(study: Study) -> bool:
 def _prepare(study: Study, out: Path, workers: int | None, scheduler: str | None) -> Any:
     """Validate every case, with the local cluster (returned; None if there is nothing to run or the
     study runs on an existing scheduler) started first, so that its fork server imports and warms
-    up (~1.3 s, the start's critical path) while the cases are validated. A case that does not
-    validate closes it; an FMU rebuilt meanwhile restarts it and its server (they loaded the old one)."""
+    up (~0.8 s of CPU, the start's critical path) while the cases are validated (it may be running
+    already: ``_early_server``). A case that does not validate closes it; an FMU rebuilt meanwhile
+    restarts it and its server (they loaded the old one)."""
     from seafmu.sweep.execute import StudyFolder, default_workers, scheduler_address, start_local_cluster
     from seafmu.sweep.study import validate_cases
 
@@ -140,7 +142,9 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         from seafmu.sweep.study import StudyError
 
         raise StudyError(f"--workers {args.workers}: must be at least 1")
-    _early_server(args)  # stopped with the cluster (``_sweep``), else it ends with this process
+    # The server is stopped with the cluster (``_sweep``); after a bad study it ends by itself once
+    # its warm-up is over and it finds this process gone (removing its unpacked FMUs).
+    _early_server(args)
     return _sweep(args)
 
 

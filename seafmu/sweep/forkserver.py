@@ -5,8 +5,10 @@ Dask and seafmu, unpacking the FMUs and loading the compiled kernels, and on a 2
 them compete with the study's validation and with each other. Python's ``forkserver`` start method
 is made for this: a clean, single-threaded server process imports (``preload``) once, and each
 worker is a fork of it (copy-on-write), ready in milliseconds; Dask supports it
-(``distributed.worker.multiprocessing-method``). The server starts first thing, so its warm-up runs
-on the other core while this process validates the study's cases.
+(``distributed.worker.multiprocessing-method``). The server starts first thing (``seafmu sweep``
+starts it before it even imports what reads the study: ``seafmu.sweep.cli._early_server``), so its
+warm-up runs on the other core while this process validates the study's cases. It starts with the
+environment Dask gives the worker processes it spawns (``WORKER_ENVIRON``: one BLAS thread each).
 
 What the server preloads: ``seafmu.sweep.warm``, which (told so by ``SERVER_ENV``) imports Dask's
 worker and seafmu and runs the study's base scenario for a few steps, so the FMUs are unpacked and
