@@ -331,3 +331,35 @@ def test_the_server_starts_before_the_study_is_read_when_its_scenario_is_a_file(
         cli._early_server(args(study))
     cli._early_server(args(tmp_path / "missing.yaml"))
     assert len(started) == 1
+
+
+WORKER_DIES = """
+import json
+from pathlib import Path
+Path("dier.py").write_text("import os\\ndef run_case(task):\\n    os._exit(3)\\n")
+import dier
+import seafmu.sweep.execute as ex
+from seafmu.sweep.study import load_study, validate_cases
+
+ex.run_case = dier.run_case  # pickled by reference: the worker imports dier (the server's sys.path has '')
+study = load_study("study.yaml", validate=False)
+validate_cases(study)
+with ex.StudyFolder(Path("out")) as folder:
+    out = ex.run_study(study, folder, workers=1, progress=False)
+    out.close()
+print(json.dumps(list(out.rows.values())))
+"""
+
+
+def test_a_case_whose_worker_process_dies_is_recorded_and_the_study_goes_on(tmp_path: Path,
+                                                                         built_fmus: object) -> None:
+    """A worker process that dies mid-case (here it exits at once) never stops the study: once Dask
+    gives up on the case, it is a row with status error and the one-line reason."""
+    _base(tmp_path)
+    (tmp_path / "study.yaml").write_text("name: s\nscenario: base.yaml\nseeds: 2\n")
+    rows = json.loads(_python(WORKER_DIES, tmp_path, {"DASK_DISTRIBUTED__SCHEDULER__ALLOWED_FAILURES": "0"})
+                      .strip().splitlines()[-1])
+    assert len(rows) == 2
+    for r in rows:
+        assert r["status"] == "error" and r["error"].startswith("the worker running this case failed (")
+        assert "\n" not in r["error"]

@@ -287,17 +287,6 @@ def _error_row(c: Case, exc: BaseException) -> dict[str, Any]:
                      f"{' '.join(str(exc).split())[:300]})", "wall_time_s": float("nan")}
 
 
-def _result(fut: Any, stop: StopRequest) -> dict[str, Any] | None:
-    """A finished case's row; None if a stop is requested while it is being fetched (a fetch
-    never blocks a Ctrl-C)."""
-    while True:
-        try:
-            return fut.result(timeout=1)
-        except TimeoutError:
-            if stop.requested:
-                return None
-
-
 def _closer(client: Any, cluster: Any) -> Callable[[], None]:
     """Close the client and the local cluster in a background thread; the returned call waits."""
     def close() -> None:
@@ -336,6 +325,7 @@ def run_study(study: Study, folder: StudyFolder, workers: int | None = None, sch
     local cluster started already (``start_local_cluster``); it is closed here. The returned
     outcome's ``close()`` waits for the cluster to be closed (in the background)."""
     from distributed import as_completed
+    from distributed.utils import CancelledError
 
     stop = stop or StopRequest()
     rows = folder.finished(study)
@@ -366,7 +356,9 @@ def run_study(study: Study, folder: StudyFolder, workers: int | None = None, sch
             from tqdm import tqdm
 
             bar = tqdm(total=len(study.cases), initial=skipped, desc=study.name, unit="case", smoothing=0.1)
-        ac = as_completed(list(futures), with_results=False)
+        # with_results: each row is fetched by the client's event loop as its case ends, so this loop
+        # never waits on a fetch (a stop is seen at once)
+        ac = as_completed(list(futures), with_results=True)
         retired: set[str] = set()
         skipped_now = 0
         fails = sum(1 for r in rows.values() if r.get("status") != "pass")
@@ -375,17 +367,12 @@ def run_study(study: Study, folder: StudyFolder, workers: int | None = None, sch
             if not batch:  # polled, so a stop is seen at once; every 10 ms, the study's end waits for it
                 time.sleep(0.01)
                 continue
-            for fut in batch:
+            for fut, result in batch:
                 c = futures[fut]
-                if fut.status == "cancelled":
+                if fut.status == "cancelled" or isinstance(result, CancelledError):
                     skipped_now += 1
                     continue
-                if fut.status == "error":
-                    row = _error_row(c, fut.exception())
-                else:
-                    row = _result(fut, stop)
-                    if row is None:  # stopped while the result was on its way
-                        break
+                row = _error_row(c, fut.exception()) if fut.status == "error" else result
                 folder.write_row(c, row)
                 rows[c.index] = row
                 ran += 1
