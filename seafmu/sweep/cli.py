@@ -154,6 +154,7 @@ def _sweep(args: argparse.Namespace) -> int:
     from seafmu.sweep.report import write_study_report
     from seafmu.sweep.study import load_study, validate_cases
     from seafmu.sweep.warm import collector_paused
+
     study = load_study(study_path(args.study), validate=False)
     out = Path(args.out) if args.out else Path("results") / "sweeps" / study.name
     if args.dry_run:
