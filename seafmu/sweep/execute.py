@@ -369,7 +369,7 @@ def run_study(study: Study, folder: StudyFolder, workers: int | None = None, sch
                 continue
             for fut, result in batch:
                 c = futures[fut]
-                if fut.status == "cancelled" or isinstance(result, CancelledError):
+                if isinstance(result, CancelledError):  # what a cancelled future gives as its result
                     skipped_now += 1
                     continue
                 row = _error_row(c, fut.exception()) if fut.status == "error" else result

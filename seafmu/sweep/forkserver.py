@@ -43,7 +43,7 @@ PRELOAD = ["seafmu.sweep.warm"]
 # delay the server by ~0.09 s.
 WORKER_ENVIRON = {"MALLOC_TRIM_THRESHOLD_": "65536", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
                   "OPENBLAS_NUM_THREADS": "1"}
-BLAS_THREADS = ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")
+BLAS_THREADS = tuple(k for k in WORKER_ENVIRON if k.endswith("_NUM_THREADS"))
 
 
 def single_threaded_blas() -> None:
@@ -51,7 +51,7 @@ def single_threaded_blas() -> None:
     no large linear algebra, and on a machine whose every core runs a worker the threads BLAS starts
     at load would take ~0.2 s of CPU from them. Call it before numpy is imported."""
     for var in BLAS_THREADS:
-        os.environ.setdefault(var, "1")
+        os.environ.setdefault(var, WORKER_ENVIRON[var])
 
 
 @contextlib.contextmanager
