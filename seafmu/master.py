@@ -29,15 +29,10 @@ disabled, recording finished).
 
 from __future__ import annotations
 
-import atexit
 import contextlib
 import ctypes
-import fcntl
 import math
-import os
-import shutil
 import signal
-import tempfile
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -46,6 +41,7 @@ from typing import Any, Literal, Protocol
 
 import numpy as np
 
+from seafmu.fmu_cache import unpacked
 from seafmu.scenario import MAX_RESULT_BYTES, MAX_STEPS, Instance, Scenario
 from seafmu.unit import Unit, UnitRequest, is_paced, make_unit, register_unit_kind, run_errors, unit_kind
 
@@ -238,7 +234,7 @@ class _StatusError(RuntimeError):
     """An FMI call on the hot path returned discard, error or fatal."""
 
 
-_EXTRACTED: dict[tuple[str, float], str] = {}
+_EXTRACTED: dict[tuple[str, int, int], str] = {}
 
 # fmpy's logger proxy formats the variadic FMI log call and hands it to ONE Python callback for the
 # whole process, so messages are routed by the instance name the FMU passes, not by which unit
@@ -283,84 +279,14 @@ def _callbacks() -> Any:
     return cb
 
 
-# The unpacked FMUs of this process live under one folder, seafmu_fmu_<random>/ in the temp
-# directory, holding ``.owner.lock`` flock-ed by this process for its lifetime. The folder goes at
-# exit (atexit: normal ends, errors, and the stop signals, which end the run normally); what a
-# SIGKILL or a crash leaves behind is swept by the next process that unpacks an FMU: a folder
-# whose lock it can take has no living owner (this works across PID namespaces, unlike PIDs).
-EXTRACT_PREFIX = "seafmu_fmu_"
-_OWNER_LOCK = ".owner.lock"
-_extract_root: Path | None = None  # this process's folder (None until it unpacks an FMU)
-_extract_lock_fd: int | None = None
-_extract_owner = 0  # the pid that made _extract_root: a forked child (a sweep's worker forked from a
-# warmed-up server) keeps using the FMUs its parent unpacked, but never removes that folder, and
-# unpacks any other FMU into a folder of its own
-
-
-def sweep_orphaned_extractions(tmp: str | None = None) -> list[Path]:
-    """Remove the FMU folders of processes that died without cleaning up; returns what went."""
-    removed = []
-    for d in Path(tmp or tempfile.gettempdir()).glob(f"{EXTRACT_PREFIX}*"):
-        lock = d / _OWNER_LOCK
-        try:
-            fd = os.open(lock, os.O_RDWR)
-        except OSError:  # no lock file: another layout, or an owner still creating it
-            continue
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:  # held: the owner lives
-            os.close(fd)
-            continue
-        try:
-            if os.fstat(fd).st_size > 0:  # written after the owner took the lock: a dead owner's
-                shutil.rmtree(d, ignore_errors=True)
-                removed.append(d)
-        finally:
-            os.close(fd)
-    return removed
-
-
-def _extract_dir() -> Path:
-    global _extract_root, _extract_lock_fd, _extract_owner
-    if _extract_root is None or _extract_owner != os.getpid():
-        sweep_orphaned_extractions()
-        root = Path(tempfile.mkdtemp(prefix=EXTRACT_PREFIX))
-        fd = os.open(root / _OWNER_LOCK, os.O_RDWR | os.O_CREAT, 0o600)
-        fcntl.flock(fd, fcntl.LOCK_EX)
-        os.write(fd, f"{os.getpid()}\n".encode())
-        _extract_root, _extract_lock_fd, _extract_owner = root, fd, os.getpid()
-    return _extract_root
-
-
 def _extract(fmu: Path) -> str:
-    """Unzip each FMU once per process (instances of the same FMU share the folder)."""
-    from fmpy import extract
-
-    key = (str(fmu), fmu.stat().st_mtime)
+    """The FMU's unpacked folder: unpacked once per FMU version and kept between runs
+    (``seafmu.fmu_cache``), looked up once per file version and process."""
+    st = fmu.stat()
+    key = (str(fmu), st.st_mtime_ns, st.st_size)
     if key not in _EXTRACTED:
-        _EXTRACTED[key] = extract(str(fmu), unzipdir=tempfile.mkdtemp(dir=_extract_dir()))
+        _EXTRACTED[key] = str(unpacked(fmu))
     return _EXTRACTED[key]
-
-
-@atexit.register
-def cleanup_extracted() -> None:
-    """Remove this process's unpacked FMUs when it ends (the libraries stay loaded until then).
-
-    Not earlier: unloading pythonfmu's library and loading it again in the same process makes the
-    next instantiate fail, so a process keeps its unpacked FMUs for later runs. A forked child
-    leaves its parent's folder alone (the parent removes it).
-    """
-    global _extract_root, _extract_lock_fd
-    if _extract_root is None or _extract_owner != os.getpid():
-        return
-    for key, d in list(_EXTRACTED.items()):
-        if Path(d).is_relative_to(_extract_root):
-            del _EXTRACTED[key]
-    shutil.rmtree(_extract_root, ignore_errors=True)
-    _extract_root = None
-    if _extract_lock_fd is not None:
-        os.close(_extract_lock_fd)
-        _extract_lock_fd = None
 
 
 _MODEL_DESCRIPTIONS: dict[tuple[str, int], Any] = {}

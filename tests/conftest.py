@@ -3,10 +3,31 @@ incrementally, like `seafmu build`)."""
 
 from __future__ import annotations
 
+import os
+import tempfile
+from collections.abc import Iterator
+
 import pytest
 
 from seafmu.build import build_all
 from seafmu.components.vessel_spec import VesselSpec, load_vessel
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _temp_folder_of_the_session(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
+    """The temporary files of the tests and of the processes they start go under pytest's own base
+    folder, which pytest prunes (it keeps the last three sessions), not into the machine's: fmpy's
+    ``extract(path)``, which the FMI tests call as any fmpy user would, unpacks into a new temporary
+    folder each time and leaves it (2 MB each, hundreds per session)."""
+    before = os.environ.get("TMPDIR")
+    os.environ["TMPDIR"] = str(tmp_path_factory.mktemp("tmp"))
+    tempfile.tempdir = None  # gettempdir() reads TMPDIR again
+    yield
+    if before is None:
+        os.environ.pop("TMPDIR", None)
+    else:
+        os.environ["TMPDIR"] = before
+    tempfile.tempdir = None
 
 
 @pytest.fixture(scope="module")

@@ -124,13 +124,15 @@ CHILD = textwrap.dedent(r'''
 # wrapper's exit-time write into freed memory corrupts a list pointer: the "corrupted
 # double-linked list" abort became about 4 % of valid runs with the unfixed FMUs (9 of 210
 # processes; 0 of 210 with the fix). The children exit that way to make a regression visible.
-EXIT_ENV = {**os.environ, "GLIBC_TUNABLES": "glibc.malloc.tcache_count=0"}
+def _exit_env() -> dict[str, str]:
+    """Read when a child starts, not at import: the session's TMPDIR (conftest) is set after."""
+    return {**os.environ, "GLIBC_TUNABLES": "glibc.malloc.tcache_count=0"}
 
 
 def _children(args_list: list[list[str]], timeout: float = 240.0) -> list[dict]:
     """Run the child once per argument list, all at once; every one must exit 0."""
     procs = [subprocess.Popen([sys.executable, "-c", CHILD, *args], stdout=subprocess.PIPE,
-                              stderr=subprocess.PIPE, text=True, cwd=REPO, env=EXIT_ENV)
+                              stderr=subprocess.PIPE, text=True, cwd=REPO, env=_exit_env())
              for args in args_list]
     results = []
     for p in procs:
@@ -296,7 +298,7 @@ def test_cli_run_exits_normally_every_time(built_fmus: dict, tmp_path: Path) -> 
         procs = [subprocess.Popen([sys.executable, "-m", "seafmu.cli", "run", str(scenario), "-q",
                                    "-o", str(tmp_path / f"out{round_}{i}")],
                                   stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO,
-                                  env=EXIT_ENV)
+                                  env=_exit_env())
                  for i in range(2)]
         for p in procs:
             _, err = p.communicate(timeout=180)

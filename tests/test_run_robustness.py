@@ -22,8 +22,9 @@ import numpy as np
 import pytest
 import yaml
 
+from seafmu import fmu_cache
 from seafmu.cli import main
-from seafmu.master import EXTRACT_PREFIX, SimulationError, StopRequest, run, sweep_orphaned_extractions
+from seafmu.master import SimulationError, StopRequest, run
 from seafmu.outdir import LOCK_FILE
 from seafmu.report import PLACEHOLDER_MARK
 from seafmu.results import CsvStream, evaluate_checks, write_csv
@@ -56,12 +57,32 @@ def _default_signals() -> None:
 
 
 def _start(scenario: Path, out: Path, tmpdir: Path) -> subprocess.Popen[str]:
-    """``seafmu run`` in a child with its own temp dir (where fmpy's unpacked FMUs go)."""
+    """``seafmu run`` in a child with its own temp dir and its own cache of unpacked FMUs
+    (``_fmu_cache``)."""
     tmpdir.mkdir(exist_ok=True)
-    env = {**os.environ, "TMPDIR": str(tmpdir)}
+    env = {**os.environ, "TMPDIR": str(tmpdir), fmu_cache.ENV: str(_fmu_cache(tmpdir))}
     return subprocess.Popen([sys.executable, "-m", "seafmu.cli", "run", str(scenario), "-q", "-o", str(out)],
                             cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             preexec_fn=_default_signals)
+
+
+def _fmu_cache(tmpdir: Path) -> Path:
+    return tmpdir.parent / "fmu_cache"
+
+
+def _unheld_versions(cache: Path) -> list[Path]:
+    """The unpacked FMU versions in ``cache`` that no process holds (an exclusive lock can be taken)."""
+    free = []
+    for version in cache.iterdir():
+        fd = os.open(version / fmu_cache.LOCK, os.O_RDONLY)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            free.append(version)
+        except OSError:
+            pass
+        finally:
+            os.close(fd)
+    return free
 
 
 def _wait_stepping(proc: subprocess.Popen[str], csv: Path, rows: int = 1500, timeout: float = 60.0) -> int:
@@ -130,13 +151,14 @@ def test_a_stop_signal_stops_cleanly_and_keeps_everything(built_fmus: dict, tmp_
     # no stale file of the older run, the user's file untouched
     assert not (out / "recording").exists() and not list(out.glob(".*.tmp"))
     assert (out / "notes.txt").read_text() == "mine\n"
-    # the unpacked FMUs went with the process
-    assert not list(tmpdir.glob(f"{EXTRACT_PREFIX}*"))
+    # nothing left in the temp folder; the four FMUs stay unpacked for the next run, held by no process
+    assert not list(tmpdir.iterdir())
+    assert len(_unheld_versions(_fmu_cache(tmpdir))) == 4
 
 
-def test_sigkill_keeps_the_streamed_rows_and_the_next_run_cleans_up(built_fmus: dict, tmp_path: Path) -> None:
-    """SIGKILL cannot be handled: what was streamed stays, the report says the run was killed, the
-    next process removes the orphaned FMU folder, and the next run into the folder clears it."""
+def test_sigkill_keeps_the_streamed_rows_and_frees_the_fmus(built_fmus: dict, tmp_path: Path) -> None:
+    """SIGKILL cannot be handled: what was streamed stays, the report says the run was killed, and
+    the unpacked FMUs it held are free for the next run (the locks went with the process)."""
     scenario, out, tmpdir = _long_scenario(tmp_path), tmp_path / "out", tmp_path / "tmp"
     proc = _start(scenario, out, tmpdir)
     try:
@@ -148,10 +170,8 @@ def test_sigkill_keeps_the_streamed_rows_and_the_next_run_cleans_up(built_fmus: 
     assert len(rows) - 1 >= seen and all(len(r.split(",")) == len(rows[0].split(",")) for r in rows)
     report = (out / "report.md").read_text()
     assert PLACEHOLDER_MARK in report and "killed" in report
-    orphans = list(tmpdir.glob(f"{EXTRACT_PREFIX}*"))
-    assert orphans  # SIGKILL leaves them ...
-    assert sorted(sweep_orphaned_extractions(str(tmpdir))) == sorted(orphans)  # ... the next process sweeps
-    assert not list(tmpdir.glob(f"{EXTRACT_PREFIX}*"))
+    assert not list(tmpdir.iterdir())
+    assert len(_unheld_versions(_fmu_cache(tmpdir))) == 4
 
 
 def test_a_locked_output_folder_is_refused_untouched(tmp_path: Path,
@@ -419,7 +439,7 @@ def test_sigterm_of_a_hardware_run_stops_the_thrusters_and_finishes_the_recordin
     assert (rec / "can.asc").read_text().rstrip().endswith("End TriggerBlock")  # the log was closed
     assert len((rec / "signals.csv").read_text().splitlines()) > 20
     assert "interrupted at t = " in (out / "report.md").read_text()
-    assert not list((tmp_path / "tmp").glob(f"{EXTRACT_PREFIX}*"))
+    assert not list((tmp_path / "tmp").iterdir())
 
 
 def test_an_fmu_file_that_unpacks_too_big_is_refused_before_it_is_unpacked(

@@ -3,8 +3,8 @@
 - The local cluster's workers are forks of multiprocessing's fork server, which loaded the study's
   FMUs once; a worker's case runs on them without unpacking its own copy, and gives the same row
   as a case run in this process.
-- A forked process never removes its parent's unpacked FMUs (the parent's next run still works),
-  unpacks a new FMU into a folder of its own, and removes that one when it ends.
+- A forked process runs on its parent's unpacked FMUs, and its end leaves them held by the parent
+  (the parent's next run still works; they are not taken for unused).
 - A server whose warm-up fails (a scenario that does not load) still serves workers that run cases.
 
 Each runs in a fresh interpreter: the fork server lives as long as the process that started it.
@@ -20,7 +20,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from test_run_robustness import _default_signals
+from test_run_robustness import _default_signals, _unheld_versions
 from test_sweep import SCENARIO
 
 
@@ -48,8 +48,9 @@ from seafmu.sweep.worker import run_case
 def where():
     import dask.config
     import seafmu.master as m
-    return {"pid": os.getpid(), "ppid": os.getppid(), "extracted": len(m._EXTRACTED),
-            "own_folder": m._extract_owner == os.getpid(),
+    from seafmu import fmu_cache
+    return {"pid": os.getpid(), "ppid": os.getppid(), "extracted": sorted(m._EXTRACTED.values()),
+            "held": sorted(str(v) for v in fmu_cache._held),
             "profiler": dask.config.get("distributed.worker.profile.enabled"),
             "blas_threads": [i["num_threads"] for i in __import__("threadpoolctl").threadpool_info()
                              if i["user_api"] == "blas"],
@@ -78,7 +79,8 @@ def test_workers_fork_from_a_server_that_loaded_the_fmus(tmp_path: Path, built_f
     assert len(out["workers"]) == 2 and out["server"] not in (None, out["me"])
     for w in out["workers"]:
         assert w["ppid"] == out["server"]  # forked by the server, not started by this process
-        assert w["extracted"] == 4 and not w["own_folder"]  # the server's four unpacked FMUs, no copy
+        # the server's four unpacked FMUs, looked up and held by it, none by the worker itself
+        assert len(w["extracted"]) == 4 and w["held"] == w["extracted"]
         assert w["profiler"] is False  # execute.QUIET reached the worker: nothing samples the case's stack
         assert w["blas_threads"] and set(w["blas_threads"]) == {1}  # as in a worker Dask spawns itself
     cores = sorted(os.sched_getaffinity(0))
@@ -95,43 +97,50 @@ def test_workers_fork_from_a_server_that_loaded_the_fmus(tmp_path: Path, built_f
 
 
 FORKED_CHILD = """
-import json, os, sys
+import fcntl, json, os, sys
 from pathlib import Path
 import seafmu.master as m
+from seafmu import fmu_cache
 from seafmu.scenario import load_scenario
+
+def held_elsewhere(version):
+    # another open file description cannot take the lock exclusively while a process holds it shared
+    fd = os.open(version / fmu_cache.LOCK, os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        return False
+    except OSError:
+        return True
+    finally:
+        os.close(fd)
 
 sc = load_scenario("base.yaml")
 m.run(sc, mode="fmu", progress=False)
-parent_root = m._extract_root
+mine = sorted(fmu_cache._held)
 pid = os.fork()
-if pid == 0:  # the child: runs on the parent's FMUs, then unpacks one more of its own
+if pid == 0:  # the child: runs on the parent's FMUs, then unpacks one more
     m.run(sc, mode="fmu", progress=False)
-    shared = m._extract_root == parent_root
-    m._extract(Path(sys.argv[1]))
-    own = m._extract_root
-    Path("child.json").write_text(json.dumps({"shared": shared, "own": str(own),
-                                              "differs": own != parent_root}))
-    sys.exit(0)  # a normal exit: the atexit cleanup runs in the child
+    shared = sorted(fmu_cache._held) == mine
+    extra = m._extract(Path(sys.argv[1]))
+    Path("child.json").write_text(json.dumps({"shared": shared, "extra": extra}))
+    sys.exit(0)
 _, status = os.waitpid(pid, 0)
 child = json.loads(Path("child.json").read_text())
-after = {"status": status, "parent_root_kept": parent_root.is_dir(),
-         "child_root_gone": not Path(child["own"]).exists()}
+after = {"status": status, "mine_held": all(held_elsewhere(v) for v in mine),
+         "extra_free": not held_elsewhere(Path(child["extra"]))}
 m.run(sc, mode="fmu", progress=False)  # the parent's FMUs still work
-print(json.dumps({**child, **after, "parent_root": str(parent_root)}))
+print(json.dumps({**child, **after}))
 """
 
 
-def test_a_forked_child_leaves_its_parents_fmus_alone(tmp_path: Path, built_fmus: dict) -> None:
+def test_a_forked_child_leaves_its_parents_fmus_held(tmp_path: Path, built_fmus: dict) -> None:
     _base(tmp_path)
-    tmpdir = tmp_path / "tmp"
-    tmpdir.mkdir()
-    extra = built_fmus[("amv_osf", "plant")]
-    code = FORKED_CHILD.replace('sys.argv[1]', repr(str(extra)))
-    out = json.loads(_python(code, tmp_path, {"TMPDIR": str(tmpdir)}).strip().splitlines()[-1])
-    assert out["status"] == 0 and out["shared"] and out["differs"]
-    assert out["parent_root_kept"] and out["child_root_gone"]
-    assert not Path(out["parent_root"]).exists()  # the parent removed its own at its exit
-    assert not list(tmpdir.glob("seafmu_fmu_*"))
+    code = FORKED_CHILD.replace('sys.argv[1]', repr(str(built_fmus[("amv_osf", "plant")])))
+    out = json.loads(_python(code, tmp_path, {"SEAFMU_FMU_CACHE": str(tmp_path / "cache")})
+                     .strip().splitlines()[-1])
+    assert out["status"] == 0 and out["shared"]
+    assert out["mine_held"]  # the child's end did not release what the parent holds
+    assert out["extra_free"]  # what the child alone held was released when it ended
 
 
 FAILED_WARMUP = """
@@ -158,9 +167,10 @@ def test_a_server_whose_warm_up_fails_still_serves_workers(tmp_path: Path, built
 
 def test_the_sweep_command_ends_its_server_and_counts_its_workers_cpu(tmp_path: Path,
                                                                      built_fmus: object) -> None:
-    """When `seafmu sweep` returns, the fork server has ended (its unpacked FMUs are gone, nothing
-    left in the temporary folder) and was waited for: the command's children's CPU time includes
-    every case's CPU time, which the workers (the server's children) spent."""
+    """When `seafmu sweep` returns, the fork server has ended (nothing left in the temporary folder
+    but Dask's lock files, its unpacked FMUs held by no process) and was waited for: the command's
+    children's CPU time includes every case's CPU time, which the workers (the server's children)
+    spent."""
     import resource
 
     import pandas as pd
@@ -172,10 +182,13 @@ def test_the_sweep_command_ends_its_server_and_counts_its_workers_cpu(tmp_path: 
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     proc = subprocess.run([sys.executable, "-m", "seafmu.cli", "sweep", "study.yaml", "--workers", "2",
                            "--out", "out", "-q"], cwd=tmp_path, capture_output=True, text=True, timeout=300,
-                          env={**os.environ, "TMPDIR": str(tmpdir)})
+                          env={**os.environ, "TMPDIR": str(tmpdir),
+                               "SEAFMU_FMU_CACHE": str(tmp_path / "cache")})
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     assert proc.returncode in (0, 1), proc.stderr
-    assert not list(tmpdir.glob("seafmu_fmu_*"))
+    left = {str(p.relative_to(tmpdir)) for p in tmpdir.rglob("*")}
+    assert left <= {"dask-scratch-space", "dask-scratch-space/global.lock", "dask-scratch-space/purge.lock"}
+    assert len(_unheld_versions(tmp_path / "cache")) == 4
     cpu = (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)
     cases = pd.read_parquet(tmp_path / "out" / "cases.parquet")
     assert len(cases) == 4 and cases["worker"].nunique() == 2
