@@ -113,9 +113,14 @@ def _hold(version: Path) -> int | None:
     except FileNotFoundError:
         return None
     fcntl.flock(fd, fcntl.LOCK_SH)  # waits only while a pruning process removes this very version
-    # Removal happens under the exclusive lock, so once this one is shared the file is either
-    # still linked (the version is in place) or gone with its folder.
-    if os.fstat(fd).st_nlink == 0:
+    # Removal happens under the exclusive lock, so once this one is shared the lock file is either
+    # still where it was opened (the version is in place) or gone with its folder.
+    try:
+        held = os.fstat(fd)
+        in_place = held.st_nlink > 0 and os.stat(version / LOCK).st_ino == held.st_ino
+    except FileNotFoundError:
+        in_place = False
+    if not in_place:
         os.close(fd)
         return None
     with contextlib.suppress(OSError):

@@ -11,6 +11,7 @@ from __future__ import annotations
 import fcntl
 import json
 import os
+import shutil
 import subprocess
 import sys
 import time
@@ -28,8 +29,8 @@ import json, os, sys
 from pathlib import Path
 from seafmu import fmu_cache
 folder = fmu_cache.unpacked(Path(sys.argv[1]))
-ino = os.stat(folder / "modelDescription.xml").st_ino
-print(json.dumps({"folder": str(folder), "ino": ino}), flush=True)
+st = os.stat(folder / "modelDescription.xml")
+print(json.dumps({"folder": str(folder), "made": [st.st_ino, st.st_ctime_ns]}), flush=True)
 if len(sys.argv) > 2:  # hold it until told to end
     sys.stdin.readline()
 """
@@ -165,3 +166,29 @@ def test_the_shared_temp_fallback_is_refused_when_others_may_write_it(tmp_path: 
     with pytest.raises(fmu_cache.CacheError, match=f"{fallback}: not a folder of this user's"):
         fmu_cache.root()
     fmu_cache._roots.clear()
+
+
+def test_a_version_removed_while_a_process_waits_to_hold_it_is_unpacked_again(plant: Path,
+                                                                             tmp_path: Path) -> None:
+    """A process that finds a version just as another removes it (pruning holds the exclusive lock)
+    waits, sees the version gone, and unpacks it anew: it never runs from a half-removed folder."""
+    cache = tmp_path / "cache"
+    first = _unpack(plant, cache)
+    version = Path(str(first["folder"]))
+    fd = os.open(version / fmu_cache.LOCK, os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)  # as a pruning process does while it removes the version
+        proc = subprocess.Popen([sys.executable, "-c", UNPACK, str(plant)], cwd=REPO, env=_env(cache),
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        time.sleep(1.0)
+        assert proc.poll() is None  # waiting for the lock
+        gone = cache / f"{fmu_cache._REMOVING}{version.name}-test"
+        version.rename(gone)
+        shutil.rmtree(gone)
+    finally:
+        os.close(fd)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 0, err
+    again = json.loads(out)
+    assert again["folder"] == str(version) and again["made"] != first["made"]  # unpacked anew, same place
+    assert (version / "modelDescription.xml").is_file() and _versions(cache) == [version.name]
