@@ -97,12 +97,18 @@ def unpacked(fmu: Path) -> Path:
     version = root() / f"{Path(fmu).stem}-{digest(fmu)}"
     if version in _held:
         return version
-    for _ in range(3):  # a version removed between finding and holding it is unpacked again
-        fd = _hold(version)
-        if fd is not None:
-            _held[version] = fd
-            return version
-        _unpack(Path(fmu), version)
+    try:
+        for _ in range(3):  # a version removed between finding and holding it is unpacked again
+            fd = _hold(version)
+            if fd is not None:
+                _held[version] = fd
+                return version
+            _unpack(Path(fmu), version)
+    except CacheError:
+        raise
+    except OSError as exc:  # a full disk, or a file system without locks (some network mounts)
+        raise CacheError(f"{version}: cannot unpack or lock the FMU there ({exc.strerror or exc}); "
+                         f"set {ENV} to a folder on a local disk") from None
     raise CacheError(f"{version}: removed by another process each time it was unpacked")
 
 
@@ -132,10 +138,11 @@ def _unpack(fmu: Path, version: Path) -> None:
     from fmpy import extract
 
     tmp = Path(tempfile.mkdtemp(prefix=f"{_UNPACKING}{version.name}-", dir=version.parent))
-    fd = os.open(tmp / LOCK, os.O_RDWR | os.O_CREAT, 0o600)
+    fd = None
     try:
-        fcntl.flock(fd, fcntl.LOCK_EX)  # an unpacking in progress is not taken for a killed one's
         try:
+            fd = os.open(tmp / LOCK, os.O_RDWR | os.O_CREAT, 0o600)
+            fcntl.flock(fd, fcntl.LOCK_EX)  # an unpacking in progress is not taken for a killed one's
             extract(str(fmu), unzipdir=str(tmp))
         except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)
@@ -148,7 +155,8 @@ def _unpack(fmu: Path, version: Path) -> None:
                 raise
             return
     finally:
-        os.close(fd)
+        if fd is not None:
+            os.close(fd)
     prune(version)
 
 

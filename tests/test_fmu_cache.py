@@ -192,3 +192,22 @@ def test_a_version_removed_while_a_process_waits_to_hold_it_is_unpacked_again(pl
     again = json.loads(out)
     assert again["folder"] == str(version) and again["made"] != first["made"]  # unpacked anew, same place
     assert (version / "modelDescription.xml").is_file() and _versions(cache) == [version.name]
+
+
+def test_a_file_system_without_locks_is_a_one_line_error_naming_the_fix(
+        plant: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Some network mounts refuse ``flock`` (ENOLCK): the error names the folder and the variable
+    that moves the cache to a local disk, instead of a bare errno."""
+    import errno
+
+    def no_locks(fd: int, op: int) -> None:
+        raise OSError(errno.ENOLCK, os.strerror(errno.ENOLCK))
+
+    monkeypatch.setenv(fmu_cache.ENV, str(tmp_path / "cache"))
+    monkeypatch.setattr(fmu_cache.fcntl, "flock", no_locks)
+    with pytest.raises(fmu_cache.CacheError) as info:
+        fmu_cache.unpacked(plant)
+    version = tmp_path / "cache" / f"{plant.stem}-{fmu_cache.digest(plant)}"
+    assert str(info.value) == (f"{version}: cannot unpack or lock the FMU there (No locks available); "
+                               f"set {fmu_cache.ENV} to a folder on a local disk")
+    assert version not in fmu_cache._held and not list((tmp_path / "cache").iterdir())  # nothing half-made
