@@ -118,7 +118,11 @@ def _hold(version: Path) -> int | None:
         fd = os.open(version / LOCK, os.O_RDONLY)
     except FileNotFoundError:
         return None
-    fcntl.flock(fd, fcntl.LOCK_SH)  # waits only while a pruning process removes this very version
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH)  # waits only while a pruning process removes this very version
+    except OSError:
+        os.close(fd)
+        raise
     # Removal happens under the exclusive lock, so once this one is shared the lock file is either
     # still where it was opened (the version is in place) or gone with its folder.
     try:
