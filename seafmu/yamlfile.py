@@ -53,14 +53,22 @@ def _check_depth(text: str) -> None:
     depth = 0
     starts = (yaml.MappingStartEvent, yaml.SequenceStartEvent)
     ends = (yaml.MappingEndEvent, yaml.SequenceEndEvent)
-    for ev in yaml.parse(text, Loader=_Base):
-        if isinstance(ev, starts):
-            depth += 1
-            if depth > MAX_YAML_DEPTH:
-                line = ev.start_mark.line + 1 if ev.start_mark is not None else "?"
-                raise _TooBig(f"nested more than {MAX_YAML_DEPTH} levels deep (line {line})")
-        elif isinstance(ev, ends):
-            depth -= 1
+    try:
+        for ev in yaml.parse(text, Loader=_Base):
+            if isinstance(ev, starts):
+                depth += 1
+                if depth > MAX_YAML_DEPTH:
+                    line = ev.start_mark.line + 1 if ev.start_mark is not None else "?"
+                    raise _TooBig(f"nested more than {MAX_YAML_DEPTH} levels deep (line {line})")
+            elif isinstance(ev, ends):
+                depth -= 1
+    except yaml.MarkedYAMLError as exc:
+        # libyaml 0.2.6 (bundled with PyYAML 6.0.4) has a nesting limit of its own, 1000 levels, and
+        # its scanner, reading ahead of the events, can reach it before this count reaches ours
+        if "nesting depth" not in (exc.problem or ""):
+            raise
+        line = exc.problem_mark.line + 1 if exc.problem_mark is not None else "?"
+        raise _TooBig(f"nested more than {MAX_YAML_DEPTH} levels deep (line {line})") from None
 
 
 def _check_expanded(doc: Any) -> None:

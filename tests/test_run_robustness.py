@@ -373,12 +373,15 @@ def test_a_big_yaml_file_is_refused_before_it_is_read(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize(("text", "expected"), [
     ("name: " + "[" * 100_000 + "]" * 100_000 + "\n", "nested more than 64 levels deep"),
+    ("name: " + "[" * 70 + "]" * 70 + "\n", "nested more than 64 levels deep (line 1)"),
+    ("".join("  " * i + f"k{i}:\n" for i in range(80)) + "  " * 80 + "x: 1\n",
+     "nested more than 64 levels deep (line 65)"),
     ("a: &a [x, x, x, x, x, x, x, x, x, x]\n" + "".join(
         f"{c}: &{c} [{', '.join([f'*{p}'] * 10)}]\n" for p, c in zip("abcdefg", "bcdefgh", strict=True)),
      "expands to more than 1,000,000 values"),
     ("a: &a [1, *a]\n", "refers to its own enclosing node"),
     ("duration: " + "9" * 5000 + "\n", "Exceeds the limit (4300 digits)"),
-], ids=["deep", "alias-bomb", "recursive-alias", "huge-int"])
+], ids=["deep", "deep-70", "deep-block", "alias-bomb", "recursive-alias", "huge-int"])
 def test_hostile_yaml_gives_one_line(tmp_path: Path, text: str, expected: str) -> None:
     path = tmp_path / "s.yaml"
     path.write_text(text)
