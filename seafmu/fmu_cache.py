@@ -47,6 +47,8 @@ class CacheError(OSError):
     """The cache folder cannot be used; the message is one line naming it and the fix."""
 
 
+# The same folder rule and write test as the kernels' numba cache (``components/kernels/_jit.py``),
+# not imported from there: that module imports numba (~0.1 s), which a run that only unpacks does not need.
 def _default_root() -> Path:
     base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
     return Path(base) / "seafmu" / "fmus"
@@ -161,60 +163,55 @@ def _unpack(fmu: Path, version: Path) -> None:
     finally:
         if fd is not None:
             os.close(fd)
-    prune(version)
+    _prune(version)
 
 
-def _remove_unused(folder: Path) -> bool:
-    """Remove ``folder`` unless a living process holds its lock; True if it went. A folder being
-    removed whose lock file is gone (its remover was killed midway) goes too; one being unpacked
-    without a lock file yet (its unpacker just made it) stays."""
+def _remove_unused(folder: Path) -> None:
+    """Remove ``folder`` unless a living process holds its lock. A folder being removed whose lock
+    file is gone (its remover was killed midway) goes too; one being unpacked without a lock file
+    yet (its unpacker just made it) stays."""
     try:
         fd: int | None = os.open(folder / LOCK, os.O_RDONLY)
     except FileNotFoundError:
         if not folder.name.startswith(_REMOVING):
-            return False
+            return
         fd = None
     except OSError:
-        return False
+        return
     try:
         if fd is not None:
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except OSError:  # held: in use, or being unpacked or removed
-                return False
+                return
         gone = folder
         if not folder.name.startswith(_REMOVING):
             gone = folder.parent / f"{_REMOVING}{folder.name}-{os.getpid()}"
             try:
                 os.rename(folder, gone)  # its name is free at once
             except OSError:  # renamed or removed meanwhile by another process
-                return False
+                return
         shutil.rmtree(gone, ignore_errors=True)
-        return True
     finally:
         if fd is not None:
             os.close(fd)  # a process waiting to hold this version now finds its lock file unlinked
 
 
-def prune(made: Path, keep: int = KEEP) -> list[Path]:
+def _prune(made: Path, keep: int = KEEP) -> None:
     """After ``made`` was unpacked: remove the versions of the same FMU beyond the ``keep`` most
-    recently used and not in use, and what killed processes left; returns what went."""
-    removed = []
-    mine = _VERSION.fullmatch(made.name)
+    recently used and not in use, and what killed processes left."""
+    stem = made.name.rsplit("-", 1)[0]  # ``made`` is named ``<stem>-<digest>`` by ``unpacked``
     versions = []
     for d in made.parent.iterdir():
         if d.name.startswith((_UNPACKING, _REMOVING)):
-            if _remove_unused(d):
-                removed.append(d)
+            _remove_unused(d)
             continue
         m = _VERSION.fullmatch(d.name)
-        if mine and m and m["stem"] == mine["stem"] and d != made:
+        if m and m["stem"] == stem and d != made:
             try:
                 versions.append((os.stat(d / LOCK).st_mtime, d))
             except OSError:
                 continue
     versions.sort(reverse=True)
     for _, d in versions[max(0, keep - 1):]:
-        if _remove_unused(d):
-            removed.append(d)
-    return removed
+        _remove_unused(d)

@@ -48,6 +48,11 @@ class _TooBig(ValueError):
     pass
 
 
+def _too_deep(mark: Any) -> _TooBig:
+    line = mark.line + 1 if mark is not None else "?"
+    return _TooBig(f"nested more than {MAX_YAML_DEPTH} levels deep (line {line})")
+
+
 def _check_depth(text: str) -> None:
     """Stream the parser's events (no objects built) and stop at the first too-deep collection."""
     depth = 0
@@ -58,8 +63,7 @@ def _check_depth(text: str) -> None:
             if isinstance(ev, starts):
                 depth += 1
                 if depth > MAX_YAML_DEPTH:
-                    line = ev.start_mark.line + 1 if ev.start_mark is not None else "?"
-                    raise _TooBig(f"nested more than {MAX_YAML_DEPTH} levels deep (line {line})")
+                    raise _too_deep(ev.start_mark)
             elif isinstance(ev, ends):
                 depth -= 1
     except yaml.MarkedYAMLError as exc:
@@ -67,8 +71,7 @@ def _check_depth(text: str) -> None:
         # its scanner, reading ahead of the events, can reach it before this count reaches ours
         if "nesting depth" not in (exc.problem or ""):
             raise
-        line = exc.problem_mark.line + 1 if exc.problem_mark is not None else "?"
-        raise _TooBig(f"nested more than {MAX_YAML_DEPTH} levels deep (line {line})") from None
+        raise _too_deep(exc.problem_mark) from None
 
 
 def _check_expanded(doc: Any) -> None:

@@ -143,7 +143,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
         raise StudyError(f"--workers {args.workers}: must be at least 1")
     # The server is stopped with the cluster (``_sweep``); after a bad study it ends by itself once
-    # its warm-up is over and it finds this process gone (removing its unpacked FMUs).
+    # its warm-up is over and it finds this process gone.
     _early_server(args)
     return _sweep(args)
 

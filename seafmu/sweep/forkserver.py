@@ -13,10 +13,10 @@ environment Dask gives the worker processes it spawns (``WORKER_ENVIRON``: one B
 What the server preloads: ``seafmu.sweep.warm``, which (told so by ``SERVER_ENV``) imports Dask's
 worker and seafmu and runs the study's base scenario for a few steps, so the FMUs are unpacked and
 loaded and the kernels compiled-in before any worker forks. A worker that finds a different FMU
-(another study in the same process, an FMU rebuilt meanwhile) unpacks and loads it itself, as a
-spawned worker would (``seafmu.master`` keys its unpacked FMUs by file and time; a forked worker
-never removes its parent's folder). One server per process: ``stop`` ends it once the cluster is
-closed (the sweep command does), else it ends with this process.
+(another study in the same process, an FMU rebuilt meanwhile) loads it itself, as a spawned worker
+would (``seafmu.master`` looks FMUs up by file and time; ``seafmu.fmu_cache`` unpacks each version
+once and the server's hold on it is shared with its forks). One server per process: ``stop`` ends
+it once the cluster is closed (the sweep command does), else it ends with this process.
 
 Why forking it is safe where forking this process (Dask's ``fork``) is not: the server is a fresh
 interpreter (started by exec) whose only thread forks, so no lock is held by a thread the fork
@@ -106,9 +106,9 @@ def start(warmup: Path | None) -> None:
 
 
 def stop() -> None:
-    """End this process's fork server, if it has one, and wait for it: its unpacked FMUs are removed
-    before the command returns, and its CPU time, with its workers', counts among this process's
-    children's (``getrusage``), as a spawned worker's did. Call it once the cluster is closed.
+    """End this process's fork server, if it has one, and wait for it: nothing of it is left when the
+    command returns, and its CPU time, with its workers', counts among this process's children's
+    (``getrusage``), as a spawned worker's did. Call it once the cluster is closed.
 
     Python has no public call for this; ``ForkServer._stop`` (3.8 to 3.13) closes the server's
     "alive" pipe, which is how the server learns its parent ended, and waits for it."""

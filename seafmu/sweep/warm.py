@@ -120,8 +120,8 @@ def dask_teardown(worker: Any) -> None:
 
 
 def _exit_at_once() -> None:
-    """The fork server's last exit handler (registered first, so it runs after seafmu's, which
-    remove the unpacked FMUs): the interpreter's own teardown of numba, LLVM and Dask (~0.04 s),
+    """The fork server's last exit handler (registered first, so it runs after every other one):
+    the interpreter's own teardown of numba, LLVM and Dask (~0.04 s),
     which the sweep command waits for (``forkserver.stop``), has nothing left to do."""
     for stream in (sys.stdout, sys.stderr):
         with contextlib.suppress(Exception):

@@ -1,11 +1,12 @@
 """One case of a study, in a worker process: the same scenario loading and master as ``seafmu run``.
 
-A worker process keeps its unpacked FMUs for all its cases (``seafmu.master``: one FMU set per
-process); each case instantiates and frees its own FMU instances. A case comes with its scenario
-resolved by the study's validation when the study is small (``study.KEEP_SCENARIOS``), so it is not
-validated twice; otherwise it is loaded here exactly as ``seafmu run`` loads it. Whatever goes wrong in a case
-comes back as its row (status ``error`` and the one-line reason), never as an exception that would
-reach the study: a failing case never stops the others.
+A worker process looks its FMUs up once for all its cases (``seafmu.master``; unpacked once per FMU
+version, ``seafmu.fmu_cache``); each case instantiates and frees its own FMU instances. A case comes
+with its scenario resolved by the study's validation when the study is small
+(``study.KEEP_SCENARIOS``), so it is not validated twice; otherwise it is loaded here exactly as
+``seafmu run`` loads it. Whatever goes wrong in a case comes back as its row (status ``error`` and
+the one-line reason), never as an exception that would reach the study: a failing case never stops
+the others.
 """
 
 from __future__ import annotations
