@@ -124,7 +124,7 @@ class CommandSupervisor:
             self.counters["timeout"] += 1
             self.events.append((now, int(i), "timeout"))
             age = now - self.last_valid[i]
-            why = "no command frame"
+            why = "no valid command frame"
             if self._stale[i]:
                 why = f"alive counter frozen at {self.last_counter[i]} ({self._stale[i]} repeated frames)"
             elif self._jumps[i]:

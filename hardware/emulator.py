@@ -45,7 +45,7 @@ from ..components.plant import PlantBlock
 from ..components.vessel_spec import load_vessel
 from .canbus import CanFrameError, Command
 from .drive import CommandSupervisor
-from .link import make_thruster_codec, sensor_mapping
+from .link import LOG_FIRST, HardwareError, make_thruster_codec, sensor_mapping
 from .nmea import NmeaCodec
 from .pacing import Pacer
 from .profile import CanConfig, HardwareProfile, SerialConfig, load_profile
@@ -90,16 +90,19 @@ class VesselEmulator:
         self.nmea = NmeaCodec(profile.origin.lat, profile.origin.lon, profile.talkers)
         self.codec = make_thruster_codec(profile, spec)
         self.counters: Counter[str] = Counter()
+        self._logged: Counter[str] = Counter()
         self.serial = SerialLines(
             profile.serial.url,
             profile.serial.baudrate,
             profile.serial.options,
             profile.reconnect_interval,
             self.counters,
+            report=self._report,
         )
         c = profile.can
         self.can = CanPort(
-            c.interface, c.channel, c.bitrate, c.options, profile.reconnect_interval, self.counters
+            c.interface, c.channel, c.bitrate, c.options, profile.reconnect_interval, self.counters,
+            report=self._report,
         )
         self.step = step
         self.status_every = max(1, round(1.0 / (status_rate * step)))
@@ -137,6 +140,15 @@ class VesselEmulator:
         self.log_lines.append(text)
         self._log_line(text)
 
+    def _report(self, kind: str, text: str) -> None:
+        """Count an event of ``kind``; log the first LOG_FIRST of each kind (as the link does), so an
+        adapter sending garbage at 100 Hz does not flood the terminal."""
+        self.counters[kind] += 1
+        self._logged[kind] += 1
+        if self._logged[kind] <= LOG_FIRST:
+            more = f" (further {kind} only counted)" if self._logged[kind] == LOG_FIRST else ""
+            self._say(f"{text}{more}")
+
     def open(self) -> None:
         if not self.serial.open() or not self.can.open():
             raise OSError(f"emulator: cannot open serial {self.profile.serial.url} or CAN {self.can.name}")
@@ -156,8 +168,8 @@ class VesselEmulator:
         for msg in self.can.recv_all():
             try:
                 item = self.codec.decode(msg)
-            except CanFrameError:
-                self.counters["bad_frame"] += 1
+            except CanFrameError as exc:
+                self._report("bad_frame", f"dropped (bad_frame, {exc.kind}): {exc}")
                 continue
             if not isinstance(item, Command):
                 continue
@@ -338,7 +350,13 @@ def run_args(args: argparse.Namespace, scenario_params: PlantParameters | None =
                 bitrate=args.bitrate,
                 options=options,
                 mapping=base.can.mapping if base else "seafmu",
-                dbc=base.can.dbc if base else None,
+                # the profile's DBC found as the link finds it (beside the profile file)
+                dbc=str(base.dbc_path()) if base and base.can.dbc else None,
+                **(
+                    {"source_address": base.can.source_address, "thruster_address": base.can.thruster_address}
+                    if base
+                    else {}
+                ),
             ),
             **(
                 {
@@ -378,7 +396,7 @@ def run_args(args: argparse.Namespace, scenario_params: PlantParameters | None =
         )
         emu.run(args.duration)
         return 0
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, HardwareError) as exc:  # ProfileError is a ValueError
         print(f"seafmu emulate: error: {str(exc).splitlines()[0]}", file=sys.stderr)
         return 2
     finally:

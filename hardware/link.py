@@ -75,7 +75,7 @@ from .transport import CanPort, SerialLines
 log = logging.getLogger("seafmu.hardware")
 
 THRUSTERS = "thrusters"  # watchdog source name of the CAN status frames
-LINE_CLASSES = ("checksum", "malformed", "invalid", "implausible", "line_too_long")
+LINE_CLASSES = ("checksum", "malformed", "invalid", "implausible", "line_too_long", "incomplete")
 FRAME_CLASSES = (
     "unknown_id", "wrong_dlc", "decode", "unexpected", "implausible_feedback", "bus_error", "tx_timeout"
 )
@@ -662,11 +662,19 @@ class HardwareLink:
         g.pending.update({c: v for c, v in values.items() if c in g.out_index})
         g.seen.add(name)
         if g.seen >= g.sentences:
-            for c, v in g.pending.items():
-                self._y[g.out_index[c]] = v
-            g.samples += 1
-            g.last_rx = now
-            self._y[g.count_index] = float(g.samples)
+            # an XDR may carry fewer transducers than the sensor measures: a sample is complete
+            # only with every channel of this round, never with one held from an earlier sample
+            missing = [c for c in g.out_index if c not in g.pending]
+            if missing:
+                self._drop("incomplete", f"{g.name}: its sentences carried no {', '.join(missing)}; "
+                           "sample dropped")
+            else:
+                for c, v in g.pending.items():
+                    self._y[g.out_index[c]] = v
+                g.samples += 1
+                g.last_rx = now
+                self._y[g.count_index] = float(g.samples)
+            g.pending.clear()
             g.seen.clear()
 
     def _frame(self, msg: Any, now: float) -> None:

@@ -25,7 +25,7 @@ from pythonfmu.enums import Fmi2Initial, Fmi2Status
 from ..fmus._slave import _dedupe_sys_path, _Py_IncRef, _release_pystate
 from ..fmus.model_description import BaseUnit, complete_model_description
 from .link import HardwareLink
-from .profile import load_profile
+from .profile import HardwareProfile, load_profile
 
 REPO = Path(__file__).resolve().parents[1]
 STRING_PARAMS = {
@@ -199,14 +199,19 @@ def build_link_fmu(profile: str | Path, dest: str | Path, base_unit: BaseUnit | 
             sys.path.remove(str(pkgs))
             for name in [m for m in sys.modules if m in (bundle, script.stem) or m.startswith(bundle + ".")]:
                 del sys.modules[name]
-    built = Path(built)
-    if built != out:
-        built.replace(out)
-    complete_link_model_description(out, prof.name, base_unit)
+    # completed beside its final name, then renamed: a failure leaves no half-described FMU
+    part = Path(built).with_name(f".{out.stem}.part.fmu")
+    Path(built).replace(part)
+    try:
+        complete_link_model_description(part, prof, base_unit)
+        part.replace(out)
+    finally:
+        part.unlink(missing_ok=True)
     return out
 
 
-def complete_link_model_description(fmu: Path, profile: str, base_unit: BaseUnit | None = None) -> None:
+def complete_link_model_description(fmu: Path, profile: str | Path | HardwareProfile,
+                                    base_unit: BaseUnit | None = None) -> None:
     """Units, min/max and InitialUnknowns, exactly as for seafmu's own FMUs."""
     iface = HardwareLink.interface(profile)
     signals = {s.name: s for s in [*iface.inputs, *iface.outputs]}

@@ -93,11 +93,16 @@ class LocalFrame:
 # -- field helpers -----------------------------------------------------------------------------
 
 
+# A number: sign, digits, decimal point (NMEA 0183), and an exponent, which some devices write and
+# which reads as the same value. Python's float() also takes "1_0" (= 10: a corrupted field read
+# as a wrong value), " 5", "infinity" and "nan": all refused here.
+_NUMBER = re.compile(r"[+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?")
+
+
 def _num(text: str, what: str) -> float:
-    try:
-        v = float(text)
-    except (TypeError, ValueError):
-        raise NmeaError("malformed", f"{what}: not a number ({text!r})") from None
+    if not isinstance(text, str) or _NUMBER.fullmatch(text) is None:
+        raise NmeaError("malformed", f"{what}: not a number ({text!r})")
+    v = float(text)
     if not math.isfinite(v):
         raise NmeaError("malformed", f"{what}: not finite ({text!r})")
     return v
@@ -269,12 +274,14 @@ def _enc_vtg(v: dict[str, float], t: datetime, ctx: Ctx) -> pynmea2.NMEASentence
 
 
 def _dec_vtg(m: pynmea2.NMEASentence, ctx: Ctx) -> dict[str, float]:
-    course = _heading_field(_field(m, 0, "VTG course"), "VTG course")
     if _field(m, 4, "VTG speed (kn)"):
         sog = _num(m.data[4], "VTG speed (kn)") * KNOT
     else:
         sog = _num(_field(m, 6, "VTG speed (km/h)"), "VTG speed (km/h)") / 3.6
-    return {"course": course, "sog": sog}
+    out = {"sog": sog}
+    if _field(m, 0, "VTG course"):  # empty when the receiver has no course (standing still), as in RMC
+        out["course"] = _heading_field(m.data[0], "VTG course")
+    return out
 
 
 def _enc_hdt(v: dict[str, float], t: datetime, ctx: Ctx) -> pynmea2.NMEASentence:
@@ -289,6 +296,8 @@ def _dec_heading(m: pynmea2.NMEASentence, ctx: Ctx) -> dict[str, float]:
     kind = type(m).__name__
     if kind == "THS" and _field(m, 1, "THS mode") == "V":
         raise NmeaError("invalid", "THS: mode V (data not valid)")
+    if kind == "HDT" and len(m.data) > 1 and m.data[1] not in ("T", ""):
+        raise NmeaError("malformed", f"HDT: heading reference {m.data[1]!r}, expected T (true)")
     return {"yaw": _heading_field(_field(m, 0, f"{kind} heading"), f"{kind} heading")}
 
 

@@ -195,6 +195,18 @@ class SerialLines(_Port):
         return True
 
 
+def _undecodable(exc: BaseException) -> UnicodeDecodeError | None:
+    """The decoding error behind ``exc`` (python-can wraps it in ``CanOperationError``), if any."""
+    seen: BaseException | None = exc
+    for _ in range(4):
+        if seen is None:
+            return None
+        if isinstance(seen, UnicodeDecodeError):
+            return seen
+        seen = seen.__cause__ or seen.__context__
+    return None
+
+
 class CanPort(_Port):
     """A python-can bus named by interface and channel; recv and send never raise."""
 
@@ -244,11 +256,18 @@ class CanPort(_Port):
         ):
             self.lost(exc)
             return True
-        why = str(exc).splitlines()[0] if str(exc) else ""
-        self.report("bus_error", f"dropped (bus_error): can {self.name} {what}: {type(exc).__name__} {why}")
-        if isinstance(exc, UnicodeDecodeError):
-            # python-can's slcan reader leaves non-ASCII bytes in its buffer when decoding fails, so
-            # every later read fails too; its flush() clears that buffer (and the pending input).
+        bad = _undecodable(exc)
+        if bad is not None:
+            # python-can's slcan reader keeps the bytes it could not decode in its line buffer, and
+            # every later read fails on them again (4.x): the line is dropped here, naming its bytes.
+            # Its private buffer is cleared where it has one (what arrived after the bad line is
+            # kept); flush() otherwise, which also drops the input waiting.
+            self.report("bus_error", f"dropped (bus_error): can {self.name} {what}: adapter line is not "
+                        f"ASCII: {bytes(bad.object[:40])!r}")
+            buf = getattr(self.bus, "_buffer", None)
+            if isinstance(buf, bytearray):
+                buf.clear()
+                return False
             flush = getattr(self.bus, "flush", None)
             if callable(flush):
                 try:
@@ -256,7 +275,20 @@ class CanPort(_Port):
                 except Exception as exc2:
                     self.lost(exc2)
                     return True
+            return False
+        why = str(exc).splitlines()[0] if str(exc) else ""
+        self.report("bus_error", f"dropped (bus_error): can {self.name} {what}: {type(exc).__name__} {why}")
         return False
+
+    def _more_waiting(self) -> bool:
+        """True if a receive that gave nothing left input unread: python-can's slcan reader returns
+        no frame for an adapter line that is not one (a Lawicel transmit acknowledgement ``z``, an
+        error BELL, an empty line) though frames may follow it in the same poll."""
+        port = getattr(self.bus, "serialPortOrig", None)
+        try:
+            return bool(port is not None and port.in_waiting)
+        except Exception:  # the port is gone: the next receive reports it
+            return False
 
     def recv_all(self) -> list[can.Message]:
         """Every frame waiting now (error frames counted and dropped); never waits."""
@@ -264,7 +296,9 @@ class CanPort(_Port):
             return []
         out: list[can.Message] = []
         errors = 0
-        while len(out) < MAX_FRAMES_PER_POLL and errors < 20:
+        for _ in range(MAX_FRAMES_PER_POLL):  # frames, lines that are not frames and errors alike
+            if errors >= 20:
+                break
             try:
                 msg = self.bus.recv(timeout=0)
             except Exception as exc:  # garbage from an adapter surfaces as ValueError, IndexError, ...
@@ -273,6 +307,8 @@ class CanPort(_Port):
                     break
                 continue
             if msg is None:
+                if self._more_waiting():
+                    continue
                 break
             if msg.is_error_frame:
                 self.report("bus_error", f"dropped (bus_error): error frame on can {self.name}")

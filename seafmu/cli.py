@@ -31,6 +31,8 @@ USER_ERRORS = (
     ("seafmu.outdir", "OutputFolderError"),
     ("seafmu.export", "ExportError"),
     ("seafmu.sweep.study", "StudyError"),
+    ("seafmu.hardware.profile", "ProfileError"),
+    ("seafmu.hardware.link", "HardwareError"),
 )
 
 
@@ -44,6 +46,11 @@ def _cmd_build(args: argparse.Namespace) -> int:
     from seafmu.build import VESSELS, build_all
 
     vessels = tuple(args.vessel) if args.vessel else VESSELS
+    if args.link:
+        from seafmu.hardware.profile import load_profile
+
+        for profile in args.link:  # a profile that does not load stops the build before it starts
+            load_profile(profile)
     for r in build_all(vessels, force=args.force):
         print(f"{'built  ' if r.rebuilt else 'current'} {r.path}")
     for profile in args.link or []:

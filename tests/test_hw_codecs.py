@@ -127,6 +127,34 @@ def test_checksum_truncation_and_garbage_classes() -> None:
     assert e.value.kind == "invalid"
 
 
+def _line(body: str) -> str:
+    return f"${body}*{pynmea2.NMEASentence.checksum(body):02X}"
+
+
+@pytest.mark.parametrize("field", ["1_0.0", "1_0", " 10", "10 ", "infinity", "nan", "0x10", "+-1", ".", "1e"])
+def test_numbers_are_read_as_nmea_writes_them_or_dropped(field: str) -> None:
+    """Python's float() takes "1_0" as 10: on the wire it is a malformed field, never a value."""
+    with pytest.raises(NmeaError) as e:
+        CODEC.decode(_line(f"SDDPT,{field},0.0,"))
+    assert e.value.kind == "malformed" and "not a number" in str(e.value)
+    with pytest.raises(NmeaError):
+        CODEC.decode(_line(f"IIXDR,A,{field},D,ROLL,A,1.0,D,PITCH"))
+    assert CODEC.decode(_line("SDDPT,10.,-0.5,")) == ("DPT", {"down": 9.5})
+    assert CODEC.decode(_line("SDDPT,.5,,"))[1]["down"] == 0.5
+    assert CODEC.decode(_line("SDDPT,1.5E1,,"))[1]["down"] == 15.0  # an exponent is the same value
+
+
+def test_heading_must_be_true_and_vtg_course_may_be_empty() -> None:
+    assert CODEC.decode(_line("HEHDT,90.0,T"))[1]["yaw"] == pytest.approx(math.pi / 2)
+    with pytest.raises(NmeaError) as e:  # a magnetic heading is not the plant's yaw
+        CODEC.decode(_line("HEHDT,90.0,M"))
+    assert e.value.kind == "malformed" and "expected T" in str(e.value)
+    # a receiver standing still (DP) sends no course: the speed is still read
+    assert CODEC.decode(_line("GPVTG,,T,,M,1.0,N,1.852,K,D")) == ("VTG", {"sog": pytest.approx(1852 / 3600)})
+    _, v = CODEC.decode(_line("GPVTG,45.0,T,,M,1.0,N,1.852,K,D"))
+    assert v["course"] == pytest.approx(math.pi / 4)
+
+
 def test_default_sentences_cover_both_vessels() -> None:
     m2 = {s.name: default_sentences(s) for s in load_vessel("minerva2").sensors}
     assert m2 == {

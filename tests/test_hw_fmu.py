@@ -9,6 +9,7 @@ import sys
 import threading
 from pathlib import Path
 
+import yaml
 from fmpy import extract, read_model_description
 from fmpy.fmi2 import FMU2Slave
 from fmpy.validation import validate_fmu
@@ -70,6 +71,28 @@ def test_link_fmu_validates_and_drives_the_emulated_vessel(tmp_path: Path) -> No
     assert 9.0 < n5 <= 10.0  # the drive's measured speed came back over CAN
 
 
+def test_link_fmu_of_a_users_profile_file_and_a_bad_profile(tmp_path: Path, capsys: object) -> None:
+    """A profile anywhere on disk builds (the docs: "hardware/profiles/, or any path"); a profile that
+    does not load is one line, exit 2, before any FMU is built, and leaves nothing behind."""
+    doc = (REPO / "hardware" / "profiles" / "emulator_pty.yaml").read_text()
+    mine = tmp_path / "profiles" / "my_rov.yaml"
+    mine.parent.mkdir()
+    mine.write_text(doc.replace("name: emulator_pty", "name: my_rov", 1))
+    assert load_profile(mine).name == "my_rov"
+    fmu = build_link_fmu(mine, tmp_path / "out", base_unit=base_unit)
+    assert fmu.name == "MyRovLink.fmu" and validate_fmu(str(fmu)) == []
+    names = {v.name: v for v in read_model_description(str(fmu)).modelVariables}
+    assert names["meas_north"].unit == "m" and names["n_cmd_1"].causality == "input"
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["MyRovLink.fmu"]
+
+    from seafmu.cli import main
+
+    assert main(["build", "--vessel", "minerva2", "--link", str(tmp_path / "nosuch.yaml")]) == 2
+    err = capsys.readouterr()  # type: ignore[attr-defined]
+    assert err.out == "" and len(err.err.strip().splitlines()) == 1, err
+    assert "nosuch.yaml" in err.err and "no such file" in err.err
+
+
 def test_emulate_subcommand_and_its_ready_line() -> None:
     parser = argparse.ArgumentParser(prog="seafmu")
     register(parser.add_subparsers(dest="command"))
@@ -102,6 +125,57 @@ def test_emulate_subcommand_and_its_ready_line() -> None:
         timeout=30,
     )
     assert bad.returncode == 2 and bad.stderr.strip().count("\n") == 0 and "INTERFACE:CHANNEL" in bad.stderr
+
+
+def test_emulator_takes_the_whole_can_part_of_a_users_profile(tmp_path: Path) -> None:
+    """``seafmu emulate --profile P`` speaks the profile's NMEA 2000 addresses and its own DBC (a
+    relative path: beside the profile, as the link finds it): the link's commands reach the drives
+    and their feedback comes back. A profile for another vessel's sensors is one line, exit 2."""
+    import numpy as np
+
+    from seafmu.hardware.link import HardwareLink
+
+    doc = (REPO / "hardware" / "profiles" / "emulator_pty.yaml").read_text()
+    (tmp_path / "my.dbc").write_bytes((REPO / "hardware" / "nmea2000_thrusters.dbc").read_bytes())
+    serial_url, slcan_channel = str(tmp_path / "nmea"), str(tmp_path / "slcan")
+    doc = doc.replace("name: emulator_pty", "name: n2k_rov", 1)
+    doc = doc.replace("mapping: seafmu", "mapping: nmea2000\n  dbc: my.dbc\n  source_address: 17\n"
+                      "  thruster_address: 48", 1)
+    doc = doc.replace("command_timeout: 0.5", "command_timeout: 0.25", 1)
+    path = tmp_path / "n2k_rov.yaml"
+    path.write_text(doc)
+    prof = load_profile(path).with_overrides(**{"serial.url": serial_url, "can.channel": slcan_channel})
+    assert (prof.can.mapping, prof.can.source_address, prof.can.thruster_address) == ("nmea2000", 17, 48)
+    path.write_text(yaml.safe_dump(prof.model_dump(exclude={"source"}), sort_keys=False))
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "seafmu.hardware.emulator", "minerva2", "--serial", f"pty:{serial_url}",
+         "--can", f"slcan:pty:{slcan_channel}", "--profile", str(path)],
+        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    link = None
+    try:
+        assert proc.stdout is not None and proc.stdout.readline().startswith("READY")
+        link = HardwareLink(load_profile(path))
+        link.initialize(np.full(7, 4.0))
+        link.set_inputs(np.full(7, 4.0))
+        t, h = 0.0, 0.05
+        for _ in range(40):
+            link.do_step(t, h)
+            t += h
+        assert np.allclose(link.get_outputs()[:7], 4.0, atol=0.05) and not link.alarm
+    finally:
+        if link is not None:
+            link.close()
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=10)
+    assert proc.returncode == 0 and "TIMEOUT" not in err, err
+    other = subprocess.run(
+        [sys.executable, "-m", "seafmu.hardware.emulator", "amv_osf", "--serial", "pty", "--can", "slcan:pty",
+         "--profile", "emulator_pty"],
+        cwd=REPO, capture_output=True, text=True, timeout=60,
+    )
+    assert other.returncode == 2 and len(other.stderr.strip().splitlines()) == 1, other.stderr
+    assert other.stderr.startswith("seafmu emulate: error:") and "sensor" in other.stderr
 
 
 def test_emulator_carries_a_fouled_thruster() -> None:

@@ -7,8 +7,9 @@ from __future__ import annotations
 import itertools
 import math
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import can
 import numpy as np
@@ -165,6 +166,35 @@ def test_commands_are_clamped_and_nan_never_reaches_the_bus(rig: tuple) -> None:
         vessel.close()
 
 
+def test_a_sample_missing_a_channel_is_dropped_never_completed_with_an_old_value(rig: tuple) -> None:
+    """An XDR may carry any of its transducers: an AHRS round whose XDR has roll but no pitch is
+    dropped (counted, logged), not completed with the pitch of the sample before."""
+    link, vessel = _link(rig)
+    try:
+        _start(link, vessel)
+        enc = vessel.nmea.encode
+        t, h = 0.0, 0.05
+        for k, xdr in enumerate((enc("XDR_ATTITUDE", {"roll": 0.2}), enc("XDR_RATES", {"r": 0.05}))):
+            other = enc("HDT", {"yaw": 0.5}) if k == 0 else ""
+            vessel.raw(f"{xdr}\r\n{other}\r\n".encode())
+            time.sleep(0.02)
+            link.do_step(t, h)
+            t += h
+            assert link.counters["incomplete"] == k + 1
+        assert out(link, "ahrs_count") == 1.0 and out(link, "gyro_count") == 1.0
+        assert out(link, "meas_roll") == pytest.approx(VALUES["roll"], abs=1e-6)  # the last full sample
+        assert out(link, "lines_dropped") == 2.0
+        assert any("ahrs: its sentences carried no pitch; sample dropped" in ln for ln in link.log_lines)
+        vessel.sample({**VALUES, "roll": 0.3}, sensors=("ahrs",))  # a whole sample completes again
+        time.sleep(0.02)
+        link.do_step(t, h)
+        assert out(link, "ahrs_count") == 2.0 and out(link, "meas_roll") == pytest.approx(0.3, abs=1e-6)
+        assert out(link, "meas_pitch") == pytest.approx(VALUES["pitch"], abs=1e-6)
+    finally:
+        link.terminate()
+        vessel.close()
+
+
 def test_malformed_input_is_counted_and_dropped_without_blocking(rig: tuple, tmp_path: Path) -> None:
     link, vessel = _link(rig, record=tmp_path / "rec")
     good = vessel.nmea.encode("DPT", {"down": 7.0})
@@ -232,8 +262,9 @@ def test_malformed_input_is_counted_and_dropped_without_blocking(rig: tuple, tmp
     assert data["watchdog_alarm"].max() == 0.0 and data["n_cmd_1"][0] == 0.0
 
 
-def test_slcan_adapter_garbage_is_counted_and_frames_keep_coming(tmp_path: Path) -> None:
-    """python-can's slcan reader raises on garbage lines (and sticks on non-ASCII): counted, recovered."""
+def _slcan_rig(tmp_path: Path, body: Callable[[HardwareLink, Any, Callable[[float], bytes]], None]) -> None:
+    """A link on SLCAN over a pty whose adapter side the test writes by hand (``frame(v)``: thruster
+    3's status frame with shaft speed v), with every sensor's first sample sent."""
     with NullModem() as nm_ser, NullModem() as nm_can:
         prof = load_profile("emulator_pty").with_overrides(
             **{"serial.url": nm_ser.b, "can.channel": nm_can.b, "startup_timeout": 2.0}
@@ -242,25 +273,65 @@ def test_slcan_adapter_garbage_is_counted_and_frames_keep_coming(tmp_path: Path)
         adapter = serial.serial_for_url(nm_can.a, timeout=0)  # the adapter's side, written by hand
         link = HardwareLink(prof)
         nmea = NmeaCodec(63.44, 10.40)
+
+        def frame(v: float) -> bytes:
+            good = link.codec.status(2, v, True, 0, 0)[0]
+            return f"t{good.arbitration_id:03X}{good.dlc}{good.data.hex().upper()}\r".encode()
+
         try:
             link.open()
             ser.write(
                 "".join(nmea.encode(s, VALUES) + "\r\n" for ss in SENSORS.values() for s in ss).encode()
             )
             link.initialize(np.zeros(7))
-            good = link.codec.status(2, 3.0, True, 0, 0)[0]
-            frame = f"t{good.arbitration_id:03X}{good.dlc}{good.data.hex().upper()}\r".encode()
-            for junk in (b"tZZZ8\r", b"t1\r", b"\xff\xfe\r"):
-                adapter.write(junk + frame)
-                link.do_step(0.0, 0.05)
-            assert link.counters["bus_error"] >= 2
-            adapter.write(frame)
-            link.do_step(0.05, 0.05)
-            assert out(link, "n_3") == pytest.approx(3.0)
+            body(link, adapter, frame)
         finally:
             link.terminate()
             ser.close()
             adapter.close()
+
+
+def test_slcan_adapter_garbage_is_counted_and_frames_keep_coming(tmp_path: Path) -> None:
+    """python-can's slcan reader raises on garbage lines, and sticks on non-ASCII ones (their bytes
+    stay in its buffer): each is counted and named, and the frames after it are read, every step."""
+
+    def body(link: HardwareLink, adapter: Any, frame: Callable[[float], bytes]) -> None:
+        t = 0.0
+        for k, junk in enumerate((b"tZZZ8\r", b"t1\r", b"\xff\xfe\r", b"\x80junk\r")):
+            adapter.write(junk + frame(3.0 + k))
+            time.sleep(0.02)
+            link.do_step(t, 0.05)
+            t += 0.05
+            assert out(link, "n_3") == pytest.approx(3.0 + k)  # the frame right after the junk
+        assert link.counters["bus_error"] == 4
+        assert any("not ASCII: b'\\xff\\xfe" in ln for ln in link.log_lines), link.log_lines
+        for k in range(3):  # and nothing sticks: every later step reads its own frame
+            adapter.write(frame(10.0 + k))
+            time.sleep(0.02)
+            link.do_step(t, 0.05)
+            t += 0.05
+            assert out(link, "n_3") == pytest.approx(10.0 + k)
+        assert link.counters["bus_error"] == 4
+
+    _slcan_rig(tmp_path, body)
+
+
+@pytest.mark.parametrize("line", [b"z\r", b"Z\r", b"\r", b"\x07"], ids=["ack", "ack-ext", "empty", "bell"])
+def test_slcan_lines_that_are_not_frames_do_not_end_the_poll(tmp_path: Path, line: bytes) -> None:
+    """Lawicel adapters answer each transmitted frame with ``z`` (python-can returns no frame for it):
+    the frames after such a line are read in the same step, so feedback never falls behind."""
+
+    def body(link: HardwareLink, adapter: Any, frame: Callable[[float], bytes]) -> None:
+        t = 0.0
+        for k in range(6):
+            adapter.write(line * 3 + frame(1.0 + k) + line + frame(2.0 + k) + line)
+            time.sleep(0.02)
+            link.do_step(t, 0.05)
+            t += 0.05
+            assert out(link, "n_3") == pytest.approx(2.0 + k)  # the newest frame of this step
+        assert link.counters["bus_error"] == 0
+
+    _slcan_rig(tmp_path, body)
 
 
 def test_lost_serial_port_is_reopened_and_the_loop_never_stalls(rig: tuple) -> None:

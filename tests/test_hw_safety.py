@@ -43,7 +43,7 @@ from hypothesis import strategies as st
 from seafmu.hardware.canbus import FAULT_COMMAND_TIMEOUT, Command, Feedback
 from seafmu.hardware.drive import CommandSupervisor
 from seafmu.hardware.emulator import VesselEmulator
-from seafmu.hardware.link import CLOSE_ROUNDS, HardwareLink, LinkClosed, close_all_links
+from seafmu.hardware.link import CLOSE_ROUNDS, LOG_FIRST, HardwareLink, LinkClosed, close_all_links
 from seafmu.hardware.nmea import NORTEK_INVALID, NmeaCodec, NmeaError
 from seafmu.hardware.plausibility import LIMITS, check_channels, limits_markdown
 from seafmu.hardware.profile import HardwareProfile, load_profile
@@ -96,7 +96,7 @@ def test_supervisor_trips_after_the_timeout_and_fresh_frames_keep_it_running() -
     speed, on = sup.output()
     assert speed.tolist() == [0.0, 0.0] and not on.any()
     assert sup.faults().tolist() == [FAULT_COMMAND_TIMEOUT] * 2
-    assert len(lines) == 2 and all("COMMAND TIMEOUT" in ln and "no command frame" in ln for ln in lines)
+    assert len(lines) == 2 and all("COMMAND TIMEOUT" in ln and "no valid command frame" in ln for ln in lines)
 
 
 def test_supervisor_frozen_counter_is_stale_and_jumps_resynchronise() -> None:
@@ -276,6 +276,27 @@ def test_emulator_stops_the_thrusters_within_the_timeout_when_commands_stop() ->
             ctl.close()
 
 
+def test_emulator_names_bad_command_frames_once_each_kind_then_counts_them() -> None:
+    """Wrong-length command frames are counted and the first few logged (then only counted), so a
+    drive's later COMMAND TIMEOUT is explained, and a flooding bus does not flood the terminal."""
+    chan = f"safety{next(_chan)}"
+    with running_emulator(_virtual_profile(chan)) as emu:
+        ctl = Controller(emu, chan)
+        try:
+            for _ in range(12):
+                good = ctl.codec.command(0, N_RUN, True, ctl.counter)
+                ctl.bus.send(can.Message(arbitration_id=good.arbitration_id, data=bytes(good.data[:3]),
+                                         is_extended_id=good.is_extended_id))
+                ctl.counter += 1
+                time.sleep(0.02)
+            assert wait_until(lambda: emu.counters["bad_frame"] == 12, 2.0), emu.counters
+            named = [ln for ln in emu.log_lines if ln.startswith("dropped (bad_frame")]
+            assert len(named) == LOG_FIRST and "further bad_frame only counted" in named[-1], named
+            assert not emu.started and not emu.drive.enable.any()  # nothing was taken as a command
+        finally:
+            ctl.close()
+
+
 def test_frozen_alive_counter_is_detected_and_an_enable_edge_restarts() -> None:
     chan = f"safety{next(_chan)}"
     with running_emulator(_virtual_profile(chan)) as emu:
@@ -386,7 +407,7 @@ def test_sigkill_of_the_controller_process_stops_the_thrusters_within_the_timeou
                     proc.wait(timeout=10)
                 err.close()
     timeouts = [ln for ln in emu.log_lines if "COMMAND TIMEOUT" in ln]
-    assert len(timeouts) == 7 and all("no command frame" in ln for ln in timeouts)
+    assert len(timeouts) == 7 and all("no valid command frame" in ln for ln in timeouts)
     # the killed process's recording: a loadable trial with every finished row, raw logs flushed
     rec = tmp_path / "rec"
     trial = load_trial(rec / "trial.yaml")
