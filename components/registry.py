@@ -85,6 +85,20 @@ def check(kind: str, name: Any) -> str:
     return name
 
 
+def check_text_parameter(name: str, value: str) -> None:
+    """ValueError if a text parameter of seafmu's blocks holds what its block refuses when the FMU
+    initialises (an unknown variant, waypoints that do not parse), so that a scenario is refused when
+    it is checked, not when it runs (a sweep validates every case before any runs)."""
+    if name == "allocator":
+        check("allocator", value)
+    elif name == "controller_variant":
+        check("controller", value)
+    elif name == "waypoints" and value.strip():
+        from .guidance import parse_waypoints
+
+        parse_waypoints(value)
+
+
 def resolve(kind: str, name: str) -> Any:
     """The implementation (class) of a registered variant, imported on first use; None for 'none'."""
     key = (kind, name)

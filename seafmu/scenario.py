@@ -465,6 +465,19 @@ def _convert(value: Any, info: VarInfo, path: Path, where: str) -> Any:
     return x
 
 
+def _check_text(kind: str | None, name: str, value: Any, path: Path, where: str) -> None:
+    """A text parameter of seafmu's own FMUs checked as its block will check it (components.registry);
+    an FMU from elsewhere (no kind) is the judge of its own."""
+    if kind is None or not isinstance(value, str):
+        return
+    from seafmu.components.registry import check_text_parameter
+
+    try:
+        check_text_parameter(name, value)
+    except ValueError as exc:
+        raise _fail(path, where, str(exc)) from None
+
+
 def _check_link(src: VarInfo, dst: VarInfo, left: str, right: str, path: Path, where: str) -> None:
     if src.type != "real" or dst.type != "real":
         raise _fail(path, where,
@@ -571,9 +584,14 @@ def resolve(model: ScenarioModel, path: Path, labels: dict[str, str] | None = No
             if info.causality not in ("parameter", "input"):
                 raise _fail(path, field, f"is an {info.causality}; it cannot be set")
             params[pname] = _convert(value, info, path, field)
+            _check_text(e.kind, pname, params[pname], path, field)
         if seed is not None:
             for v in variables.values():
                 if v.causality == "parameter" and (v.name == "seed" or v.name.endswith("_seed")):
+                    given = labels.get(f"{where}.parameters.{v.name}")
+                    if given is not None:  # both name its value: neither may silently win
+                        raise _fail(path, "--seed", f"{seed} and {given} both set {name}.{v.name}; "
+                                    "give one of them")
                     params[v.name] = _convert(seed, v, path, f"--seed (fmus.{name}.{v.name})")
                     seeded.append(f"{name}.{v.name}")
         if e.kind is not None and params.get("vessel_file"):
@@ -629,6 +647,14 @@ def resolve(model: ScenarioModel, path: Path, labels: dict[str, str] | None = No
         _check_link(sinfo, dinfo, left, right, path, where)
         connections[(di, dv)] = (si, sv)
 
+    for inst in instances:  # a start value on a connected input: the connection overwrites it at once
+        for pname in inst.parameters:
+            if (inst.name, pname) in connections and inst.variables[pname].causality == "input":
+                field = f"fmus.{inst.name}.parameters.{pname}"
+                src = ".".join(connections[(inst.name, pname)])
+                raise _fail(path, labels.get(field, field), f"{inst.name}.{pname} is an input driven by "
+                            f"{src}; a value given here would be overwritten (disconnect it to set it)")
+
     events = []
     for k, ev in enumerate(model.events):
         where = labels.get(f"events[{k}]", f"events[{k}]")
@@ -643,7 +669,9 @@ def resolve(model: ScenarioModel, path: Path, labels: dict[str, str] | None = No
         if abs(k_ev - round(k_ev)) > 1e-6:
             raise _fail(path, where, f"time {ev.time} s is not on the step grid ({model.step} s)")
         value_field = where if where.startswith("--set") else f"{where}.value"
-        events.append((ev.time, inst, var, _convert(ev.value, info, path, value_field)))
+        value = _convert(ev.value, info, path, value_field)
+        _check_text(by_name[inst].kind, var, value, path, value_field)
+        events.append((ev.time, inst, var, value))
     events.sort(key=lambda e: e[0])
 
     record_every = 1

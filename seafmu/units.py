@@ -21,10 +21,28 @@ _UNITS: dict[str, tuple[str, float]] = {
     "N": ("N", 1.0), "kN": ("N", 1000.0),
     "N.m": ("N.m", 1.0), "Nm": ("N.m", 1.0), "kN.m": ("N.m", 1000.0),
     "rev/s": ("rev/s", 1.0), "rps": ("rev/s", 1.0), "rpm": ("rev/s", 1.0 / 60.0),
-    "kg": ("kg", 1.0), "Hz": ("Hz", 1.0), "1": ("1", 1.0),
+    "kg": ("kg", 1.0), "Hz": ("Hz", 1.0), "1": ("1", 1.0), "N/s": ("N/s", 1.0), "kN/s": ("N/s", 1000.0),
 }
 
-_QUANTITY = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*([A-Za-z/.^2]+)\s*$")
+_NUMBER = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
+_PLAIN = re.compile(rf"^\s*{_NUMBER}\s*$")
+# a unit starts with a letter ("m/s^2", "N.m/(rad.s)"), or is "1/..." after a space ("5 1/s")
+_QUANTITY = re.compile(rf"^\s*({_NUMBER})(?:\s*([A-Za-z][A-Za-z0-9/.^()]*)|\s+(1/[A-Za-z0-9/.^()]+))\s*$")
+_NON_FINITE = ("inf", "infinity", "nan")
+
+
+def is_number(text: str) -> bool:
+    """A bare number (``"1e2"``, ``" 0.5 "``): no unit, no ``_`` digit separators."""
+    return _PLAIN.match(text) is not None
+
+
+def split_quantity(text: str) -> tuple[float, str] | None:
+    """``"<number> <unit>"`` as (number, unit); None for anything else, a bare number included (so
+    ``"1e2"`` is 100, never 1 in a unit ``e2``)."""
+    if is_number(text):
+        return None
+    m = _QUANTITY.match(text)
+    return None if m is None else (float(m.group(1)), m.group(2) or m.group(3))
 
 
 class UnitError(ValueError):
@@ -55,13 +73,14 @@ def to_si(value: object, target_unit: str) -> float:
             raise UnitError(f"{_show(value)} is too large for a floating-point number") from None
     if not isinstance(value, str):
         raise UnitError(f"expected a number or '<number> <unit>', got {_show(value)}")
-    m = _QUANTITY.match(value)
-    if not m:
-        try:
-            return float(value)
-        except ValueError:
-            raise UnitError(f"expected a number or '<number> <unit>', got {_show(value)}") from None
-    number, unit = float(m.group(1)), m.group(2)
+    if is_number(value) or value.strip().lower().lstrip("+-") in _NON_FINITE:
+        return float(value)
+    q = split_quantity(value)
+    if q is None:  # float() would also take "1_0" as 10: refused
+        raise UnitError(f"expected a number or '<number> <unit>', got {_show(value)}")
+    number, unit = q
+    if unit == (target_unit or "1"):  # the variable's own unit, also one the table does not list
+        return number
     if unit not in _UNITS:
         raise UnitError(f"unknown unit {_show(unit, 30)} in {_show(value)} "
                         f"(known: {', '.join(sorted(_UNITS))})")

@@ -4,6 +4,7 @@ seed reaching every random source, Parquet beside the CSV."""
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -52,6 +53,14 @@ def short(tmp_path: Path) -> Path:
     ("plant.fail_mode_3@3.01=1", "--set plant.fail_mode_3@3.01=1: time 3.01 s is not on the step grid"),
     ("plant.wave_tp@2=6", "--set plant.wave_tp@2=6: plant.wave_tp is a fixed parameter"),
     ("plant.current_speed=[1, 2]", "the value must be a number"),
+    # text parameters checked as the FMU checks them when it initialises, so a check or a sweep's
+    # validation refuses what would fail in the run
+    ("allocator.allocator=bogus", "--set allocator.allocator=bogus: unknown allocator variant 'bogus'"),
+    ("allocator.allocator@1=bogus", "allocator.allocator@1=bogus: unknown allocator variant 'bogus'; known:"),
+    ("controller.controller_variant=bogus", "unknown controller variant 'bogus'; known: dp_pid"),
+    ("controller.waypoints=garbage;;", "waypoints: entry 1 'garbage' is not 'north, east'"),
+    ("controller.north_hat=5", "controller.north_hat is an input driven by observer.north_hat"),
+    ("plant.current_speed=1_0 m/s", "expected a number or '<number> <unit>', got '1_0 m/s'"),
 ])
 def test_set_errors_are_one_line(short: Path, capsys: pytest.CaptureFixture[str], given: str,
                                  expected: str) -> None:
@@ -60,6 +69,18 @@ def test_set_errors_are_one_line(short: Path, capsys: pytest.CaptureFixture[str]
     assert err.count("\n") == 1 and err.startswith("seafmu: error: ")
     assert expected in err
     assert not (short.parent / "out" / "results.csv").exists()  # nothing ran
+
+
+def test_numbers_with_an_exponent_and_units_the_table_lacks(short: Path) -> None:
+    """'1e-2' is a number (not 1 in a unit 'e-2'); a variable's own unit is accepted even where the
+    conversion table has no entry for it (the allocator's N/s)."""
+    sc = load_scenario(short, [parse_override("plant.current_speed=1e-2"),
+                               parse_override("plant.current_direction=2E2 deg"),
+                               parse_override("allocator.thrust_rate_max_1=150 N/s")])
+    params = {i.name: i.parameters for i in sc.instances}
+    assert params["plant"]["current_speed"] == 0.01
+    assert params["plant"]["current_direction"] == pytest.approx(200 * math.pi / 180)
+    assert params["allocator"]["thrust_rate_max_1"] == 150.0
 
 
 def test_bad_seed_is_one_line(short: Path, capsys: pytest.CaptureFixture[str]) -> None:

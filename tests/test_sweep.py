@@ -110,7 +110,24 @@ def test_failing_case_recorded_without_stopping(small: tuple[Path, Done]) -> Non
     for e in bad["error"]:
         assert "ref_omega" in e and "\n" not in e
     assert (frame["status"] != "error").sum() == 4  # the others all ran
-    assert "## Cases that could not run" in (folder / "out" / "report.md").read_text()
+    report = (folder / "out" / "report.md").read_text()
+    assert "## Cases that could not run" in report
+    # a check is evaluated by the 4 cases that ran, not by those that could not, even where their
+    # rows carry a check value NaN that failed (a run stopped early: the simulation diverged)
+    from seafmu.sweep.execute import Outcome, StudyFolder
+    from seafmu.sweep.report import write_study_report
+
+    study = load_study(folder / "study.yaml")
+    rows = StudyFolder(folder / "out").finished(study)
+    for r in rows.values():
+        if r["status"] == "error":
+            r.update({"check: north error": float("nan"), "pass: north error": False})
+    out = folder / "report_stopped_runs"
+    out.mkdir()
+    write_study_report(study, Outcome(8, 0, 8, "", rows, 1.0, 2), out)
+    table = [ln for ln in (out / "report.md").read_text().splitlines()
+             if ln.startswith(("| north error | <=", "| EKF north rms | <="))]
+    assert len(table) == 2 and all(ln.split("|")[3].strip() == "4" for ln in table), table
 
 
 def test_worst_case_reproduces_exactly(small: tuple[Path, Done]) -> None:
@@ -267,6 +284,29 @@ def test_study_on_an_existing_scheduler(tmp_path: Path, built_fmus: object) -> N
     ("name: x\nscenario: base.yaml\nkeep: [plant.nothing]\n", "keep[0]: 'plant.nothing' is not a recorded"),
     ("name: x\nscenario: base.yaml\nvary: {thruster: {values: [1, 2]}}\n", "vary.thruster: an input is"),
     ("- just a list\n", "expected a mapping of study fields"),
+    # counted before the cases are made (this cross product would fill the memory)
+    ("name: x\nscenario: base.yaml\nvary: {plant.current_speed: {uniform: [0, 1]}}\n"
+     "sampling: {samples: 100000}\nseeds: 100000\n", "10000000000 cases; a study is limited to 100000"),
+    ("name: x\nscenario: base.yaml\nvary: {plant.seed: {values: [1, 2]}}\nseeds: [9]\n",
+     "--seed: 9 and --set plant.seed=1 both set plant.seed"),
+    ("name: x\nscenario: base.yaml\nvary:\n  plant.current_speed: {values: [0.1, 0.2]}\n"
+     "  x: {values: [0.3], set: {plant.current_speed: '{value}'}}\n",
+     "case 0: plant.current_speed is set more than once"),
+    ("name: x\nscenario: base.yaml\nset: {plant.current_speed: 0.1}\n"
+     "vary: {plant.current_speed: {values: [0.2]}}\n", "plant.current_speed is set more than once"),
+    ("name: x\nscenario: base.yaml\nvary: {plant.current_speed: {values: [0.1, 0.1, 0.2]}}\n",
+     "vary.plant.current_speed.values: values repeat"),
+    ("name: x\nscenario: base.yaml\nvary: {plant.current_speed: {grid: {start: 0.1, stop: 0.1, num: 3}}}\n",
+     "3 points from 0.1 to 0.1 repeat values"),
+    ("name: x\nscenario: base.yaml\nvary: {plant.current_speed: {grid: {start: 0, stop: '1e400', num: 3}}}\n",
+     "start and stop must be finite"),
+    ("name: x\nscenario: base.yaml\nvary: {key: {values: [1, 2], set: {'plant.fail_mode_{value}': 1}}}\n",
+     "'key' names a column of every case's row"),
+    ("name: x\nscenario: base.yaml\nmetrics: [{name: a, signal: plant.north},\n"
+     "  {name: a, signal: plant.east}]\n",
+     "metric names repeat (a)"),
+    ("name: x\nscenario: base.yaml\nmetrics: [{name: a, signal: plant.north, after: 4, before: 2}]\n",
+     "the window ends (before: 2) before it starts (after: 4)"),
 ])
 def test_bad_study_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str], study: str,
                                expected: str) -> None:
@@ -276,6 +316,29 @@ def test_bad_study_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str
     assert err.count("\n") == 1 and err.startswith("seafmu: error: "), err
     assert expected in err
     assert not (tmp_path / "out").exists()  # nothing ran, nothing written
+
+
+def test_a_folder_of_another_study_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = _write(tmp_path, 8, "name: second\nscenario: base.yaml\nseeds: 2\n")
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "study.yaml").write_text("name: first\nscenario: base.yaml\n")
+    assert main(["sweep", str(path), "--out", str(out), "--dry-run"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "holds the results of study 'first', not 'second'" in err, err
+    (out / "study.yaml").write_text("name: second\nscenario: base.yaml\nseeds: 3\n")  # the same, changed
+    assert main(["sweep", str(path), "--out", str(out), "--dry-run"]) == 0
+
+
+def test_numbers_with_an_exponent_are_numbers(tmp_path: Path) -> None:
+    """YAML reads ``1e2`` (no point) as text; it is still 100, never 1 in a unit 'e2'."""
+    path = _write(tmp_path, 8, "name: e\nscenario: base.yaml\nvary:\n"
+                  "  controller.kp_north: {values: [1e2, 50, '2.5e1']}\n"
+                  "  plant.current_speed: {uniform: ['1e-2 m/s', '2E-1 m/s']}\nsampling: {samples: 2}\n")
+    s = load_study(path)
+    assert sorted({c.inputs["controller.kp_north"] for c in s.cases}) == [25.0, 50.0, 100.0]
+    assert all(0.01 <= c.inputs["plant.current_speed"] <= 0.2 for c in s.cases)
+    assert "controller.kp_north=100.0" in s.cases[0].overrides
 
 
 def test_dry_run_and_case_design(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -137,6 +137,21 @@ def _prepare(study: Study, out: Path, workers: int | None, scheduler: str | None
     return cluster
 
 
+def _check_folder_study(out: Path, study: Study) -> None:
+    """A study folder holds one study (changed or not: a rerun redoes only the cases that changed);
+    another study's name there would have its cases.parquet and report replaced by this one's."""
+    from seafmu.sweep.study import StudyError
+    from seafmu.yamlfile import read_mapping
+
+    try:
+        held = read_mapping(out / "study.yaml", "study", ValueError).get("name")
+    except (OSError, ValueError):  # none there, or not ours to judge: the folder is used as it is
+        return
+    if isinstance(held, str) and held != study.name:
+        raise StudyError(f"{out}: holds the results of study '{held}', not '{study.name}'; give another "
+                         "--out (or remove that folder)")
+
+
 def cmd_sweep(args: argparse.Namespace) -> int:
     if args.workers is not None and args.workers < 1:
         from seafmu.sweep.study import StudyError
@@ -157,6 +172,7 @@ def _sweep(args: argparse.Namespace) -> int:
 
     study = load_study(study_path(args.study), validate=False)
     out = Path(args.out) if args.out else Path("results") / "sweeps" / study.name
+    _check_folder_study(out, study)
     if args.dry_run:
         validate_cases(study)
         done = StudyFolder(out).finished(study) if out.is_dir() else {}

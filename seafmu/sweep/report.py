@@ -364,12 +364,13 @@ def write_study_report(study: Study, outcome: Any, out: Path) -> tuple[Path, lis
     check_cols = [CHECK + n for n in bounds if CHECK + n in frame.columns]
     metric_cols = [c for c in frame.columns if c.startswith(METRIC)]
     rate_rows, table = [("all checks", k, n_done)], []
+    ran = frame[status != "error"]  # a case that could not run to its end evaluated no check
     for col in check_cols:
         name = col[len(CHECK):]
-        passed = frame[PASS + name].dropna()
+        passed = ran[PASS + name].dropna()
         kk, nn = int(passed.sum()), int(passed.size)
         a, b = wilson(kk, nn)
-        v = frame[col].astype(float)
+        v = ran[col].astype(float)
         rate_rows.append((name, kk, nn))
         table.append([name, _bound_text(*bounds[name]), str(nn), str(kk),
                       f"{100 * kk / nn:.1f} %" if nn else "—",

@@ -36,6 +36,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from seafmu.scenario import Override, ScenarioError, load_scenario, parse_override, scenario_path
+from seafmu.units import is_number, split_quantity
 from seafmu.yamlfile import read_mapping, validation_message
 
 Scalar = float | int | str | bool
@@ -44,8 +45,16 @@ MAX_CASES = 100_000  # a study larger than this is a mistake more often than a p
 # this many cases: about 30 kB each, held by this process and the scheduler until the case runs.
 KEEP_SCENARIOS = 2_000
 SAMPLING_METHODS = ("lhs", "sobol", "saltelli", "random")
-_QUANTITY = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*([A-Za-z/.^2]+)\s*$")
 _TARGET = re.compile(r"^[A-Za-z_][A-Za-z0-9_-]*\.[A-Za-z_][A-Za-z0-9_\[\].]*(@.+)?$")
+
+
+# A row's own columns in cases.parquet (seafmu.sweep.worker.run_case, execute.cases_frame), and the
+# prefixes of its check, pass and metric columns: an input named so would overwrite one of them
+# (an input "key" would make every rerun miss its finished cases).
+ROW_COLUMNS = frozenset({"case", "key", "seed", "status", "error", "worker", "run_time_s", "simulated_s",
+                         "loop_time_s", "realtime_factor", "wall_time_s", "started", "finished", "cpu_time_s",
+                         "sample", "overrides", "command", "timeseries"})
+ROW_PREFIXES = ("check: ", "pass: ", "metric: ", "_")
 
 
 class StudyError(ValueError):
@@ -123,6 +132,9 @@ class Metric(_Strict):
     def _tol(self) -> Metric:
         if self.metric == "settling_time" and self.tolerance is None:
             raise ValueError("a settling_time metric needs 'tolerance'")
+        if self.before is not None and not self.before > self.after:
+            raise ValueError(f"the window ends (before: {self.before:g}) before it starts "
+                             f"(after: {self.after:g})")
         return self
 
 
@@ -138,6 +150,15 @@ class StudyModel(_Strict):
     metrics: list[Metric] = Field(default_factory=list)
     keep: list[str] = Field(default_factory=list)
     worst: int = Field(5, ge=0, le=100)
+
+    @field_validator("metrics")
+    @classmethod
+    def _metric_names(cls, v: list[Metric]) -> list[Metric]:
+        names = [m.name for m in v]
+        dup = sorted({n for n in names if names.count(n) > 1})
+        if dup:
+            raise ValueError(f"metric names repeat ({', '.join(dup)}): each is one column")
+        return v
 
     @field_validator("seeds")
     @classmethod
@@ -210,16 +231,14 @@ def _quantity(x: float | str, unit: str | None, path: Path, where: str) -> tuple
     if isinstance(x, int | float) and not isinstance(x, bool):
         return float(x), unit or ""
     if isinstance(x, str):
-        m = _QUANTITY.match(x)
-        if m:
-            u = m.group(2)
+        q = split_quantity(x)
+        if q is not None:
+            number, u = q
             if unit and u != unit:
                 raise _fail(path, where, f"'{x}' is in {u}, the input's unit is {unit}")
-            return float(m.group(1)), u
-        try:
+            return number, u
+        if is_number(x):  # "1e2": YAML reads an exponent without a point as text
             return float(x), unit or ""
-        except ValueError:
-            pass
     raise _fail(path, where, f"expected a number or '<number> <unit>', got {x!r}")
 
 
@@ -247,18 +266,28 @@ def _axis(name: str, inp: Input, path: Path) -> tuple[list[Scalar], str]:
     """A list or grid input's values (numbers in its unit, or any scalars) and that unit."""
     where = f"vary.{name}"
     if inp.values is not None:
-        if all(isinstance(v, int | float | str) and not isinstance(v, bool) for v in inp.values) and any(
-                isinstance(v, str) and _QUANTITY.match(v) for v in inp.values):
-            nums, unit = _same_unit([_quantity(v, inp.unit, path, f"{where}.values") for v in inp.values],
+        vals: list[Scalar] = list(inp.values)
+        numeric = [(isinstance(v, int | float) and not isinstance(v, bool))
+                   or (isinstance(v, str) and (is_number(v) or split_quantity(v) is not None)) for v in vals]
+        unit = inp.unit or ""
+        if all(numeric) and any(isinstance(v, str) for v in vals):
+            nums, unit = _same_unit([_quantity(v, inp.unit, path, f"{where}.values") for v in vals],
                                     path, f"{where}.values")
-            return list(nums), unit
-        return list(inp.values), inp.unit or ""
+            vals = list(nums)
+        if len({(type(v) is bool, v) for v in vals}) < len(vals):  # the same case twice, counted twice
+            raise _fail(path, f"{where}.values", "values repeat")
+        return vals, unit
     g = inp.grid
     assert g is not None
     (a, ua), (b, ub) = (_quantity(g.start, inp.unit, path, f"{where}.grid.start"),
                         _quantity(g.stop, inp.unit, path, f"{where}.grid.stop"))
     _, unit = _same_unit([(a, ua), (b, ub)], path, f"{where}.grid")
-    return [float(v) for v in np.linspace(a, b, g.num)], unit
+    if not (math.isfinite(a) and math.isfinite(b)):
+        raise _fail(path, f"{where}.grid", f"start and stop must be finite (got {a:g}, {b:g})")
+    pts = [float(v) for v in np.linspace(a, b, g.num)]
+    if len(set(pts)) < len(pts):
+        raise _fail(path, f"{where}.grid", f"{g.num} points from {a:g} to {b:g} repeat values")
+    return pts, unit
 
 
 def _ppf(name: str, inp: Input, u: np.ndarray, path: Path) -> tuple[list[Scalar], str]:
@@ -370,6 +399,9 @@ def load_study(path: str | Path, validate: bool = True) -> Study:
         if inp.set is None and not _TARGET.match(name):
             raise _fail(path, f"vary.{name}", "an input is 'instance.variable' (or "
                         "'instance.variable@TIME'), or a name with 'set:' templates")
+        if name in ROW_COLUMNS or name.startswith(ROW_PREFIXES):
+            raise _fail(path, f"vary.{name}", f"'{name}' names a column of every case's row; call the input "
+                        "something else")
         if inp.set is not None:
             for tmpl in inp.set:
                 if "{value}" not in tmpl and "{value}" not in str(inp.set[tmpl]):
@@ -382,32 +414,38 @@ def load_study(path: str | Path, validate: bool = True) -> Study:
     for n in grid_names:
         axes[n], units[n] = _axis(n, model.vary[n], path)
     seeds = _seed_list(model)
-    design = None
-    samples: list[dict[str, Scalar]] = [{}]
+    n_samples = 1
     if sampled_names:
         n_pts = model.sampling.samples
         if model.sampling.method == "sobol" and n_pts & (n_pts - 1):
             raise _fail(path, "sampling.samples", f"Sobol sequences need a power of 2 (got {n_pts})")
         if model.sampling.method == "saltelli" and n_pts & (n_pts - 1):
             raise _fail(path, "sampling.samples", f"the Saltelli design needs a power of 2 (got {n_pts})")
-        design = _design(model.sampling.method, len(sampled_names), n_pts, model.sampling.seed)
+        n_samples = n_pts * (len(sampled_names) + 2) if model.sampling.method == "saltelli" else n_pts
+    if model.pair_seeds:
+        if model.seeds is None:
+            raise _fail(path, "pair_seeds", "needs seeds")
+        if len(seeds) != n_samples:
+            raise _fail(path, "pair_seeds", f"{len(seeds)} seeds for {n_samples} samples; pairing needs "
+                        "as many of each")
+    # counted before anything is made: 100000 samples crossed with 100000 seeds would fill the memory
+    n_grid = math.prod(len(v) for v in axes.values()) if axes else 1
+    total = n_grid * n_samples * (1 if model.pair_seeds else len(seeds))
+    if total > MAX_CASES:
+        raise _fail(path, "vary", f"{total} cases; a study is limited to {MAX_CASES}")
+    design = None
+    samples: list[dict[str, Scalar]] = [{}]
+    if sampled_names:
+        design = _design(model.sampling.method, len(sampled_names), model.sampling.samples,
+                         model.sampling.seed)
         cols = {}
         for j, n in enumerate(sampled_names):
             cols[n], units[n] = _ppf(n, model.vary[n], design[:, j], path)
         samples = [{n: cols[n][i] for n in sampled_names} for i in range(len(design))]
     if model.pair_seeds:
-        if model.seeds is None:
-            raise _fail(path, "pair_seeds", "needs seeds")
-        if len(seeds) != len(samples):
-            raise _fail(path, "pair_seeds", f"{len(seeds)} seeds for {len(samples)} samples; pairing needs "
-                        "as many of each")
         combos = [(i, s, seeds[i]) for i, s in enumerate(samples)]
     else:
         combos = [(i, s, seed) for i, s in enumerate(samples) for seed in seeds]
-    n_grid = math.prod(len(v) for v in axes.values()) if axes else 1
-    total = n_grid * len(combos)
-    if total > MAX_CASES:
-        raise _fail(path, "vary", f"{total} cases; a study is limited to {MAX_CASES}")
 
     fixed = _fixed_overrides(model)
     scenario_text = scenario_file.read_bytes()
@@ -429,6 +467,11 @@ def load_study(path: str | Path, validate: bool = True) -> Study:
                         target = tmpl.replace("{value}", str(v))
                         tv_text = str(tv).replace("{value}", vt) if isinstance(tv, str) else _text(tv, "")
                         overrides.append(f"{target}={tv_text}")
+            targets = [o.partition("=")[0].strip() for o in overrides]
+            if len(set(targets)) < len(targets):  # the last would win, and the row show the other value
+                dup = next(t for t in targets if targets.count(t) > 1)
+                raise _fail(path, "vary", f"case {len(cases)}: {dup} is set more than once (by two inputs, "
+                            "or by 'set:' and an input); each variable may be set by one only")
             c = Case(len(cases), overrides, seed, values, sample_i if sampled_names else None)
             c.key = case_key(scenario_text, overrides, seed, extra)
             cases.append(c)
