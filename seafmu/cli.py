@@ -46,6 +46,11 @@ def _cmd_build(args: argparse.Namespace) -> int:
     from seafmu.build import VESSELS, build_all
 
     vessels = tuple(args.vessel) if args.vessel else VESSELS
+    unknown = [v for v in vessels if v not in VESSELS]  # a name, never a path: it names the build files
+    if unknown:
+        print(f"seafmu: error: --vessel {one_line(unknown[0])}: not a vessel with FMUs "
+              f"(vessels: {', '.join(VESSELS)})", file=sys.stderr)
+        return 2
     if args.link:
         from seafmu.hardware.profile import load_profile
 

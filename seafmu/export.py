@@ -252,6 +252,11 @@ def _checks_document(sc: Scenario) -> list[dict[str, Any]]:
 
 
 def _beside(sc: Scenario, out: Export, events_path: Path, checks_path: Path) -> None:
+    """The events and checks files beside the export; those of an earlier export to the same place
+    are removed when this scenario has none (libcosim would run the old events on the new system)."""
+    for path, has in ((events_path, sc.events), (checks_path, sc.checks)):
+        if not has:
+            path.unlink(missing_ok=True)
     if sc.events:
         events_path.write_text(json.dumps(events_document(sc), indent=2) + "\n")
         out.files.append(events_path)
@@ -268,19 +273,38 @@ def _beside(sc: Scenario, out: Export, events_path: Path, checks_path: Path) -> 
             "'seafmu run --coupling jacobi' runs as they do"))
 
 
+def _file_names(fmus: dict[str, Path]) -> dict[str, str]:
+    """Instance -> the FMU's file name in the export, one per distinct file: two different files
+    of one name (other/Minerva2Plant.fmu beside Minerva2Plant.fmu) get their instance's name added,
+    so that neither replaces the other."""
+    by_file: dict[Path, str] = {}
+    out: dict[str, str] = {}
+    for inst, path in fmus.items():
+        key = path.resolve()
+        if key not in by_file:
+            name = path.name
+            if name in by_file.values():
+                name = f"{path.stem}_{inst}{path.suffix}"  # instance names are unique
+            by_file[key] = name
+        out[inst] = by_file[key]
+    return out
+
+
 def export_ssp(sc: Scenario, target: Path) -> Export:
     """Write ``target`` (.ssp: a zip of SystemStructure.ssd, resources/*.fmu, resources/*.ssv)."""
     target = check_ssp_target(target)
     fmus = fmu_sources(sc)
-    sources = {name: f"resources/{path.name}" for name, path in fmus.items()}
+    names = _file_names(fmus)
+    sources = {inst: f"resources/{name}" for inst, name in names.items()}
     out = Export()
     with tempfile.NamedTemporaryFile(dir=target.parent, suffix=".ssp.tmp", delete=False) as tmp:
         tmp_path = Path(tmp.name)
     try:
         with zipfile.ZipFile(tmp_path, "w", zipfile.ZIP_DEFLATED) as z:
             z.writestr("SystemStructure.ssd", ssd_document(sc, sources))
-            for path in sorted(set(fmus.values())):
-                z.write(path, f"resources/{path.name}")
+            for inst in sorted(fmus, key=lambda i: names[i]):
+                if sources[inst] not in z.namelist():
+                    z.write(fmus[inst], sources[inst])
             for inst in sc.instances:
                 if inst.parameters:
                     z.writestr(f"resources/{inst.name}.ssv", _ssv(inst))
@@ -322,12 +346,14 @@ def export_osp(sc: Scenario, target: Path) -> Export:
     target = check_osp_target(target)
     target.mkdir(exist_ok=True)
     fmus = fmu_sources(sc)
+    names = _file_names(fmus)
     out = Export()
-    for path in sorted(set(fmus.values())):
-        shutil.copyfile(path, target / path.name)
-        out.files.append(target / path.name)
+    for inst in sorted(fmus, key=lambda i: names[i]):
+        if target / names[inst] not in out.files:
+            shutil.copyfile(fmus[inst], target / names[inst])
+            out.files.append(target / names[inst])
     doc = target / "OspSystemStructure.xml"
-    doc.write_bytes(osp_document(sc, {name: path.name for name, path in fmus.items()}))
+    doc.write_bytes(osp_document(sc, names))
     out.files.insert(0, doc)
     _beside(sc, out, target / "scenario.json", target / "checks.yaml")
     return out

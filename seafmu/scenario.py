@@ -21,9 +21,10 @@ import re
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, model_validator
+from pydantic_core import PydanticCustomError
 
 from seafmu.units import UnitError, to_si
 from seafmu.yamlfile import read_mapping, validation_message
@@ -53,6 +54,16 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 
+def _not_bool(v: Any) -> Any:
+    """pydantic reads true as 1.0 where a number belongs: ``duration: true`` would be a 1 s run."""
+    if isinstance(v, bool):
+        raise PydanticCustomError("bool_number", "expected a number, not true or false")
+    return v
+
+
+Number = Annotated[float, BeforeValidator(_not_bool)]
+
+
 class FmuEntry(_Strict):
     kind: Literal["plant", "observer", "controller", "allocator"] | None = None
     fmu: str | None = Field(None, description="path to any FMI 2.0 co-simulation FMU instead of a kind")
@@ -69,7 +80,7 @@ class FmuEntry(_Strict):
 
 
 class Event(_Strict):
-    time: float = Field(ge=0)
+    time: Number = Field(ge=0)
     set: str = Field(description="instance.variable")
     value: Value
 
@@ -79,11 +90,11 @@ class Check(_Strict):
     signal: str
     minus: str | None = Field(None, description="subtract this signal (e.g. a reference)")
     metric: Literal["max_abs", "final_abs", "rms", "max", "min", "mean"] = "max_abs"
-    after: float = 0.0
-    before: float | None = None
+    after: Number = 0.0
+    before: Number | None = None
     angle: bool = Field(False, description="wrap the difference to (-pi, pi]")
-    max: float | None = None
-    min: float | None = None
+    max: Number | None = None
+    min: Number | None = None
 
     @model_validator(mode="after")
     def _bound(self) -> Check:
@@ -103,9 +114,9 @@ class ScenarioModel(_Strict):
     name: str = Field(pattern=_IDENT, max_length=100, description="also the results folder name")
     description: str = ""
     vessel: str
-    duration: float = Field(gt=0)
-    step: float = Field(gt=0, description="master communication step, s")
-    record_interval: float | None = Field(None, gt=0)
+    duration: Number = Field(gt=0)
+    step: Number = Field(gt=0, description="master communication step, s")
+    record_interval: Number | None = Field(None, gt=0)
     realtime: bool = Field(False, description="pace the run to the wall clock (always, with hardware)")
     coupling: Coupling = Field(
         "gauss-seidel", description="gauss-seidel: each FMU reads the newest outputs (scenario order); "

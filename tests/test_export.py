@@ -169,6 +169,42 @@ def test_cli_export_writes_both_formats_and_one_left_out_line(
     assert "gauss-seidel coupling (libcosim and ecos couple as Jacobi" in left[0]
 
 
+def test_two_fmu_files_of_one_name_and_a_second_export_to_the_same_place(
+        tmp_path: Path, built_fmus: dict) -> None:
+    """Another file named like one of the scenario's FMUs keeps its own name in the export (it
+    replaced the other before), and an export of a scenario without events or checks over an
+    earlier one leaves none of the earlier events or checks for libcosim to run."""
+    import shutil
+
+    import yaml
+
+    doc = yaml.safe_load((Path(__file__).resolve().parents[1] / "scenarios" / "minerva2_dp.yaml").read_text())
+    (tmp_path / "other").mkdir()
+    shutil.copy(built_fmus[("minerva2", "allocator")], tmp_path / "other" / "Minerva2Plant.fmu")
+    doc["fmus"]["allocator"] = {"fmu": "other/Minerva2Plant.fmu"}
+    doc["events"], doc["checks"] = [], []
+    path = tmp_path / "same_name.yaml"
+    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    export_osp(load_scenario("minerva2_dp"), tmp_path / "osp")
+    export_ssp(load_scenario("minerva2_dp"), tmp_path / "m.ssp")
+    assert (tmp_path / "osp" / "scenario.json").is_file() and (tmp_path / "m.events.json").is_file()
+    sc = load_scenario(path)
+    export_osp(sc, tmp_path / "osp")
+    export_ssp(sc, tmp_path / "m.ssp")
+    for stale in ("osp/scenario.json", "osp/checks.yaml", "m.events.json", "m.checks.yaml"):
+        assert not (tmp_path / stale).exists(), stale
+    root = ET.parse(tmp_path / "osp" / "OspSystemStructure.xml").getroot()
+    sources = {s.get("name"): s.get("source") for s in root.iter() if s.tag.endswith("Simulator")}
+    assert sources["plant"] == "Minerva2Plant.fmu" and sources["allocator"] == "Minerva2Plant_allocator.fmu"
+    for name, kind in (("Minerva2Plant.fmu", "plant"), ("Minerva2Plant_allocator.fmu", "allocator")):
+        assert (tmp_path / "osp" / name).read_bytes() == Path(built_fmus[("minerva2", kind)]).read_bytes()
+    with zipfile.ZipFile(tmp_path / "m.ssp") as z:
+        names = z.namelist()
+        assert len(names) == len(set(names))
+        assert z.read("resources/Minerva2Plant_allocator.fmu") == (tmp_path / "osp" /
+                                                                   "Minerva2Plant_allocator.fmu").read_bytes()
+
+
 def test_cli_export_of_jacobi_scenarios_leaves_the_coupling_in(
         tmp_path: Path, capsys: pytest.CaptureFixture[str], built_fmus: object) -> None:
     dp = tmp_path / "dp.yaml"

@@ -91,6 +91,11 @@ def test_link_fmu_of_a_users_profile_file_and_a_bad_profile(tmp_path: Path, caps
     err = capsys.readouterr()  # type: ignore[attr-defined]
     assert err.out == "" and len(err.err.strip().splitlines()) == 1, err
     assert "nosuch.yaml" in err.err and "no such file" in err.err
+    for bad in ("bogus", "../../etc"):  # a vessel name, never a path: it names the build's files
+        assert main(["build", "--vessel", bad]) == 2
+        err = capsys.readouterr()  # type: ignore[attr-defined]
+        assert err.err == (f"seafmu: error: --vessel {bad}: not a vessel with FMUs "
+                           "(vessels: amv_osf, minerva2, supply)\n"), err
 
 
 def test_emulate_subcommand_and_its_ready_line() -> None:

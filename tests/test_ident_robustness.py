@@ -205,6 +205,24 @@ def test_write_vessel_into_a_missing_folder_is_refused_before_fitting(
     assert not (tmp_path / "nonexistent").exists()
 
 
+def test_write_vessel_onto_the_trials_own_files_or_without_a_vessel_is_refused(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The measured data (or the trial file) is never replaced by a vessel file; a trial that names
+    no vessel has nothing to start the file from: one line each, before any fit, nothing written."""
+    trial = _trial(tmp_path / "t", _decay_csv())
+    files = sorted(p for p in trial.parent.iterdir() if p.is_file())
+    before = {p: p.read_bytes() for p in files}
+    for target in files:
+        rc, err = _run(["identify", str(trial), "--vessel", "amv_osf", "--write-vessel", str(target),
+                        "-o", str(tmp_path / "out")], capsys)
+        _assert_one_line(rc, err, f"--write-vessel {target}: is one of the trial's own files")
+    assert {p: p.read_bytes() for p in files} == before and len(files) >= 2
+    rc, err = _run(["identify", str(trial), "--write-vessel", str(tmp_path / "v.yaml"),
+                    "-o", str(tmp_path / "out")], capsys)
+    _assert_one_line(rc, err, "the trial names no vessel to start the file from; give --vessel")
+    assert not (tmp_path / "v.yaml").exists()
+
+
 # -- vessel / log mismatch ---------------------------------------------------------------------------
 
 @pytest.fixture(scope="module")

@@ -65,6 +65,8 @@ CASES = [
     ("missing vessel", {"vessel": _DELETE}, "vessel: required field is missing"),
     ("unknown vessel", {"vessel": "titanic"}, "vessel: vessel 'titanic'"),
     ("negative duration", {"duration": -1}, "duration: Input should be greater than 0"),
+    ("true as a duration", {"duration": True}, "duration: expected a number, not true or false"),
+    ("false as a check bound", {"checks/0/max": False}, "checks.0.max: expected a number, not true or false"),
     ("step does not divide duration", {"step": 0.3}, "step: duration 10.0 s is not a whole number"),
     ("unknown FMU in event", {"events/0/set": "ctrl.north_ref"}, "events[0]: unknown FMU 'ctrl'"),
     ("unknown variable", {"events/0/set": "controller.nort_ref"},

@@ -75,6 +75,15 @@ def load(args: argparse.Namespace) -> Trial:
         trial = load_trial(path)
     if args.vessel:
         trial.vessel = args.vessel
+    if args.write_vessel:
+        out = Path(args.write_vessel).resolve()
+        inputs = {p.resolve() for p in [path, *([trial.source] if trial.source else []), *trial.files]}
+        if out in inputs:  # the measured data would be replaced by a vessel file, nothing left to refit
+            raise TrialError(f"--write-vessel {args.write_vessel}: is one of the trial's own files; give "
+                             "another file to write")
+        if not trial.vessel:
+            raise TrialError(f"--write-vessel {args.write_vessel}: the trial names no vessel to start the "
+                             "file from; give --vessel")
     if args.baseline:
         key = (trial.kind, trial.table if trial.kind == "static" else None)
         allowed = BASELINES[key][1]
