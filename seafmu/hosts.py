@@ -131,23 +131,36 @@ def _load_ecos() -> Any:
 
 
 def _ecos_events(ecospy: Any, sim: Any, events: list[tuple[float, str, str, Any]], step: float) -> None:
-    """Timed real-valued overrides as an ecos scenario listener.
+    """Timed overrides as an ecos scenario listener, each by its type: an Integer variable set by a
+    real action makes ecos throw ("Real property not found") and abort the process.
 
-    Not ``EcosSimulation.add_scenario``: ecospy 0.7.2 declares ``ecos_scenario_add_real_action``
-    without its last argument (``eps``, a C++ default), so ecos reads an undefined tolerance and
-    actions after t = 0 never fire; and ecos applies actions from the back of its list, sorting
-    them only for XML scenarios, so they are added latest first.
+    Not ``EcosSimulation.add_scenario``: ecospy 0.7.2 declares the ``ecos_scenario_add_*_action``
+    calls without their last argument (``eps``, a C++ default), so ecos reads an undefined
+    tolerance and actions after t = 0 never fire; and ecos applies actions from the back of its
+    list, sorting them only for XML scenarios, so they are added latest first.
     """
     from ecospy.lib import dll
 
     create = dll.ecos_scenario_create
     create.restype = ctypes.c_void_p
-    add = dll.ecos_scenario_add_real_action
-    add.argtypes = [ctypes.c_void_p, ctypes.c_double, ctypes.c_char_p, ctypes.c_double, ctypes.c_double]
-    add.restype = ctypes.c_bool
+    adders = {}
+    for kind, ctype in (("real", ctypes.c_double), ("int", ctypes.c_int), ("bool", ctypes.c_bool),
+                        ("string", ctypes.c_char_p)):
+        add = getattr(dll, f"ecos_scenario_add_{kind}_action")
+        add.argtypes = [ctypes.c_void_p, ctypes.c_double, ctypes.c_char_p, ctype, ctypes.c_double]
+        add.restype = ctypes.c_bool
+        adders[kind] = add
     listener = create()
     for t, inst, var, value in sorted(events, key=lambda e: -e[0]):
-        if not add(listener, t, f"{inst}::{var}".encode(), float(value), step / 2):
+        if isinstance(value, bool):  # the event file keeps the FMI type (export.events_document)
+            kind, arg = "bool", value
+        elif isinstance(value, int):
+            kind, arg = "int", value
+        elif isinstance(value, str):
+            kind, arg = "string", value.encode()
+        else:
+            kind, arg = "real", float(value)
+        if not adders[kind](listener, t, f"{inst}::{var}".encode(), arg, step / 2):
             raise EngineError(f"ecos: event {inst}.{var} at {t} s: {ecospy.EcosLib.get_last_error()}")
     sim._add_listener(sim.sim, b"scenario", listener)
 

@@ -113,20 +113,23 @@ from pathlib import Path
 from seafmu import hosts
 kind, path, events, out = sys.argv[1], Path(sys.argv[2]), sys.argv[3], sys.argv[4]
 rec = [tuple(x.split('.')) for x in sys.argv[5].split(',')]
+duration = float(sys.argv[6])
 events = Path(events) if events != '-' else None
 if kind == 'osp':
-    r = hosts.run_osp_libcosim(path, rec, 60.0, 0.05)
+    r = hosts.run_osp_libcosim(path, rec, duration, 0.05)
 elif kind == 'ssp':
-    r = hosts.run_ssp_libcosim(path, rec, 60.0, 0.05, events)
+    r = hosts.run_ssp_libcosim(path, rec, duration, 0.05, events)
 else:
-    r = hosts.run_ssp_ecos(path, rec, 60.0, 0.05, events)
+    r = hosts.run_ssp_ecos(path, rec, duration, 0.05, events)
 np.savez(out, **r)
 """
 
 
-def _run_engine(kind: str, path: Path, events: Path | None, out: Path) -> dict[str, np.ndarray]:
+def _run_engine(kind: str, path: Path, events: Path | None, out: Path,
+                duration: float = 60.0) -> dict[str, np.ndarray]:
     rec = ",".join(f"{i}.{v}" for i, v in RECORD)
-    proc = subprocess.run([sys.executable, "-c", _CHILD, kind, str(path), str(events or "-"), str(out), rec],
+    proc = subprocess.run([sys.executable, "-c", _CHILD, kind, str(path), str(events or "-"), str(out), rec,
+                           repr(duration)],
                           capture_output=True, text=True, timeout=300, env=dict(os.environ))
     assert proc.returncode == 0, proc.stderr[-2000:]
     with np.load(out) as data:
@@ -146,6 +149,20 @@ def test_exported_files_run_alike_in_libcosim_and_ecos(exported: dict[str, Path]
     assert osp["plant.down"][0] == 5.0  # the initial depth, not the FMU's start value
     for key in osp:
         np.testing.assert_allclose(ssp[key], osp[key], rtol=0, atol=1e-9)
+        np.testing.assert_allclose(eco[key], osp[key], rtol=0, atol=1e-9)
+
+
+def test_integer_events_run_alike_in_libcosim_and_ecos(tmp_path: Path, built_fmus: object) -> None:
+    """A thruster failure is Integer events (fail_mode, enable): ecos took every event as Real and
+    aborted its host ("Real property not found"); each now goes in as its FMI type."""
+    sc = load_scenario("minerva2_thruster_failure")
+    assert any(isinstance(v, int) and not isinstance(v, bool) for *_, v in sc.events)
+    export_ssp(sc, tmp_path / "tf.ssp")
+    export_osp(sc, tmp_path / "osp")
+    osp = _run_engine("osp", tmp_path / "osp", None, tmp_path / "osp.npz", 70.0)  # the failure at 60 s
+    eco = _run_engine("ecos", tmp_path / "tf.ssp", tmp_path / "tf.events.json", tmp_path / "ecos.npz", 70.0)
+    assert osp["allocator.n_cmd_1"].shape == (1401,) and np.ptp(osp["allocator.n_cmd_1"][1200:]) > 0
+    for key in osp:
         np.testing.assert_allclose(eco[key], osp[key], rtol=0, atol=1e-9)
 
 
