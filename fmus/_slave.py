@@ -248,12 +248,16 @@ class BlockSlave(Fmi2Slave):
         )
         self._n_vars = len(self.vars)
 
-    def _bundled_vessel(self) -> str:
-        """This FMU's own vessel file: ``components`` may have been imported from another seafmu
-        FMU's folder, which the host may have removed since (see the generated script)."""
+    def _bundled_vessel(self, name: str | None = None) -> str:
+        """A vessel file bundled in this FMU (``name``, default its own vessel) by its path in this
+        FMU's resources: ``components`` may have been imported from another seafmu FMU's folder,
+        which the host may have removed since (see the generated script). A path is kept as given."""
+        name = name or self.VESSEL
+        if name.endswith((".yaml", ".yml")):
+            return name
         bundle = __name__.split(".")[0]  # the build's package name inside an FMU (seafmu/build.py)
-        own = os.path.join(self.resources or "", bundle, "components", "vessels", f"{self.VESSEL}.yaml")
-        return own if self.resources and os.path.isfile(own) else self.VESSEL
+        own = os.path.join(self.resources or "", bundle, "components", "vessels", f"{name}.yaml")
+        return own if self.resources and os.path.isfile(own) else name
 
     def _register_parameter(self, p: Any) -> None:
         variability = Fmi2Variability.tunable if p.tunable else Fmi2Variability.fixed
@@ -418,7 +422,7 @@ class BlockSlave(Fmi2Slave):
                 self._check_param(name, value)
         spec = self._spec
         if params[VESSEL_FILE]:
-            spec = load_vessel(params[VESSEL_FILE])
+            spec = load_vessel(self._bundled_vessel(params[VESSEL_FILE]))
             other = self.BLOCK.interface(spec)
             if other.input_names() != self._iface.input_names() or (
                 other.output_names() != self._iface.output_names()

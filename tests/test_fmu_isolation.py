@@ -43,6 +43,24 @@ def test_every_fmu_one_after_another_with_simulate_fmu(built_fmus: dict) -> None
     assert f"ok {len(paths) + 2}" in proc.stdout
 
 
+_VESSEL_BY_NAME_AGAIN = """
+import sys
+from fmpy import simulate_fmu
+plant = sys.argv[1]
+simulate_fmu(plant, stop_time=0.5, output_interval=0.05)  # its folder is removed when it returns
+res = simulate_fmu(plant, stop_time=0.5, output_interval=0.05, output=["north"],
+                   start_values={"vessel_file": "minerva2_published_damping"})
+print("ok", len(res))
+"""
+
+
+def test_a_bundled_vessel_by_name_after_the_first_fmus_folder_is_gone(built_fmus: dict) -> None:
+    """``vessel_file`` naming a bundled vessel is found in this FMU's own resources, not in the
+    folder of the FMU that first imported the code, which fmpy removed after that run."""
+    proc = _host(_VESSEL_BY_NAME_AGAIN, str(fmu_path("minerva2", "plant")))
+    assert proc.returncode == 0 and "ok 11" in proc.stdout, proc.stderr[-1500:]
+
+
 _SIDE_BY_SIDE = """
 import sys
 from fmpy import extract, read_model_description
