@@ -310,8 +310,10 @@ class QPAllocator:
 
     def __getstate__(self) -> dict[str, Any]:
         """Copy/pickle without DAQP's C workspace (not copyable); the copy is set up again from the
-        last dual solution. The original is re-set up the same way, so a saved and restored FMU
-        state continues bit-identically with the run that was never interrupted."""
+        last dual solution. The original is re-set up the same way, so a restored FMU state and the
+        run it was saved from continue bit-identically. A run whose state was never saved keeps its
+        warm workspace and may differ from them in the last bits (1e-15 relative: the same QP
+        optimum, reached from another start)."""
         self._model = None
         state = dict(self.__dict__)
         state["_daqp"] = None
