@@ -372,6 +372,10 @@ class HardwareLink:
                     f"{self.name}: cannot open {port.what} port {port.name} (profile {p.name})"
                 )
 
+    def initial_outputs(self, values: np.ndarray) -> None:
+        """None: a vessel's first outputs are its sensors' first samples (``initialize``)."""
+        return None
+
     def initialize(self, values: np.ndarray) -> np.ndarray:
         """Open the ports and wait for a first complete sample of every sensor."""
         p = self.profile

@@ -181,8 +181,9 @@ class BlockUnit:
             if k in all_inputs:  # initial input values given under 'parameters'
                 self._u[all_inputs.index(k)] = v
                 del params[k]
+        self._new_block = lambda: cls(spec, full_params(iface, params))
         try:
-            self.block = cls(spec, full_params(iface, params))
+            self.block = self._new_block()
         except ValueError as exc:
             raise SimulationError(f"{inst.name}: {exc}") from None
         self.out_names = iface.output_names()
@@ -190,6 +191,16 @@ class BlockUnit:
         self._in_idx = np.array([all_inputs.index(n) for n in in_names], dtype=int)
         self._all_inputs = all_inputs
         self._y = np.zeros(len(self.out_names))
+
+    def initial_outputs(self, values: np.ndarray) -> np.ndarray:
+        """From a block made for this look only, as the FMU makes one in initialisation mode: the
+        block that runs starts once, from the settled inputs (its start draws random numbers)."""
+        u = self._u.copy()
+        u[self._in_idx] = values
+        try:
+            return np.asarray(self._new_block().start(u), dtype=float)
+        except ValueError as exc:
+            raise SimulationError(f"{self.name}: {exc}") from None
 
     def initialize(self, values: np.ndarray) -> np.ndarray:
         self.set_inputs(values)
@@ -367,6 +378,10 @@ class FmuUnit:
 
     def step_error(self, what: str, exc: Exception) -> Exception:
         return self.error(what, exc)
+
+    def initial_outputs(self, values: np.ndarray) -> np.ndarray:
+        self._call("setReal (initial inputs)", lambda: self.set_inputs(values))
+        return self._call("getReal (initial outputs)", self.get_outputs).copy()
 
     def initialize(self, values: np.ndarray) -> np.ndarray:
         """Inputs set in initialisation mode, then exit it: the FMU starts from upstream values."""
@@ -552,8 +567,20 @@ def _loop(scenario: Scenario, units: list[Unit], mode: str, progress: bool, log:
         conn = {dv: (si, sv) for si, sv, di, dv in scenario.connections if di == u.name}
         src_idx.append(np.array([slot[conn[n]] for n in u.in_names], dtype=int))
 
-    # Initial outputs, propagated in causal order so every FMU starts from consistent inputs
-    # (inputs fed back from later FMUs, e.g. the allocator's command to the plant, start at 0).
+    # Initial values propagated along every connection until they settle, as libcosim does (in
+    # initialisation mode: inputs set, outputs read, again), so that the FMUs' order in the scenario
+    # changes nothing (listed against the data flow, the observer started from a plant at 0). A
+    # closed loop settles where some FMU's initial outputs do not depend on its inputs (the plant's
+    # on its thrust command); one that does not is left after as many rounds as FMUs. Then each FMU
+    # leaves initialisation mode from the settled inputs.
+    for _ in range(len(units)):
+        before = bus.copy()
+        for j, (u, sl) in enumerate(zip(units, out_slices, strict=True)):
+            y = u.initial_outputs(bus[src_idx[j]])
+            if y is not None:
+                bus[sl] = y
+        if np.array_equal(bus, before, equal_nan=True):
+            break
     for j, (u, sl) in enumerate(zip(units, out_slices, strict=True)):
         bus[sl] = u.initialize(bus[src_idx[j]])
 

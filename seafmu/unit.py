@@ -36,6 +36,12 @@ class Unit(Protocol):
     out_names: list[str]  # every output, in the order ``get_outputs`` returns them
     paces_itself: bool  # True: ``do_step`` waits for the wall clock (a ``PacedUnit``)
 
+    def initial_outputs(self, values: np.ndarray) -> np.ndarray | None:
+        """The outputs these inputs give at t = 0, still in initialisation mode (FMI lets a host set
+        inputs and read outputs there, repeatedly, to propagate initial values along connections);
+        None where they cannot be had before ``initialize`` (a real vessel)."""
+        ...
+
     def initialize(self, values: np.ndarray) -> np.ndarray:
         """Inputs (``in_names`` order) at t = 0; returns the initial outputs."""
         ...

@@ -114,6 +114,21 @@ def test_inprocess_mode_honours_the_coupling(minerva: dict[str, dict[str, np.nda
     assert _max_diff(minerva["jacobi/inprocess"], minerva["gauss-seidel/inprocess"], "plant.north") > 1e-3
 
 
+@pytest.mark.parametrize("mode", ["fmu", "inprocess"])
+def test_the_fmus_order_in_the_scenario_changes_nothing_under_jacobi(
+        minerva: dict[str, dict[str, np.ndarray]], mode: str) -> None:
+    """Listed against the data flow (allocator first, plant last), the FMUs still start from
+    settled initial values (propagated along the connections, as libcosim does): the run equals
+    the one in data-flow order, so libcosim's. Before, the observer started from a plant at 0."""
+    sc = _short(load_scenario("minerva2_dp"), DURATION)
+    backwards = dataclasses.replace(sc, coupling="jacobi", instances=list(reversed(sc.instances)))
+    assert [i.name for i in backwards.instances] == ["allocator", "controller", "observer", "plant"]
+    r = run(backwards, mode=mode, progress=False).signals
+    for i, v in SIGNALS:
+        assert _max_diff(r, minerva["jacobi/fmu"], f"{i}.{v}") <= 1e-9, (i, v)
+    assert r["observer.north_hat"][0] == minerva["libcosim"]["observer.north_hat"][0] != 0.0
+
+
 # -- a chain of tiny FMUs: the one-step delay per connection ----------------------------------
 
 TOKEN = uuid.uuid4().hex[:8]
