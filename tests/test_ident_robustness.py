@@ -189,6 +189,37 @@ def test_non_utf8_trial_yaml(tmp_path: Path) -> None:
         load_trial(tmp_path / "t.yaml")
 
 
+@pytest.mark.parametrize("scale", [1e6, 1e12])
+def test_rescaled_data_gives_a_report_and_standard_json(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                        scale: float) -> None:
+    """The shipped pendulum decay with every column times 1e6 or 1e12 (units gone wrong): every fit
+    may diverge, and still diagnose writes its report (its ranking plot had nothing finite to scale
+    to) and --json prints JSON that other readers take (no Infinity or NaN: null)."""
+    import csv
+    import json
+
+    src = Path(__file__).resolve().parents[1] / "scenarios" / "data"
+    rows = []
+    for r in csv.reader((src / "pendulum_free_decay.csv").read_text().splitlines()):
+        try:
+            rows.append([repr(float(x) * scale) for x in r])
+        except ValueError:
+            rows.append(r)
+    with open(tmp_path / "pendulum_free_decay.csv", "w", newline="") as fh:
+        csv.writer(fh).writerows(rows)
+    (tmp_path / "pendulum_free_decay.yaml").write_text((src / "pendulum_free_decay.yaml").read_text())
+    trial = tmp_path / "pendulum_free_decay.yaml"
+    for cmd in ("identify", "diagnose"):
+        rc = main([cmd, str(trial), "--json", "-o", str(tmp_path / cmd)])
+        out = capsys.readouterr().out
+        assert rc == 0, cmd
+        strict = {"parse_constant": lambda c, cmd=cmd: pytest.fail(f"{cmd} --json wrote {c}")}
+        json.loads(out, **strict)
+        name = "diagnosis" if cmd == "diagnose" else "identification"
+        json.loads((tmp_path / cmd / f"{name}.json").read_text(), **strict)
+        assert (tmp_path / cmd / f"{name}.md").is_file()
+
+
 # -- write-back never creates folders ------------------------------------------------------------
 
 def test_write_vessel_into_a_missing_folder_is_refused_before_fitting(

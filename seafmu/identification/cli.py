@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -98,6 +99,24 @@ def load(args: argparse.Namespace) -> Trial:
     return trial
 
 
+def json_text(doc: Any) -> str:
+    """Standard JSON: a value that is not finite (a diverged fit's interval) is null, as in a run's
+    summary.json; Python's json would write Infinity and NaN, which other readers refuse."""
+    def clean(x: Any) -> Any:
+        if isinstance(x, float) and not math.isfinite(x):
+            return None
+        if isinstance(x, dict):
+            return {k: clean(v) for k, v in x.items()}
+        if isinstance(x, list):
+            return [clean(v) for v in x]
+        return x
+
+    from seafmu.identification import report as rp
+
+    plain = json.loads(json.dumps(doc, default=rp._jsonable))
+    return json.dumps(clean(plain), indent=2, allow_nan=False)
+
+
 def one_line(msg: str) -> str:
     """A multi-line error (one problem per line, each naming the file) as one line: the file
     named once, the problems joined by '; '."""
@@ -172,9 +191,10 @@ def _run(args: argparse.Namespace, diagnose: bool) -> int:
         with open(report, "a") as fh:
             fh.write("\n## Close the loop\n\n" + "".join(f"- {ln}\n" for ln in closing["lines"]))
     name = "diagnosis.json" if diagnose else "identification.json"
-    (out / name).write_text(json.dumps(doc, indent=2, default=rp._jsonable) + "\n")
+    text = json_text(doc)
+    (out / name).write_text(text + "\n")
     if args.json:
-        print(json.dumps(doc, indent=2, default=rp._jsonable))
+        print(text)
         print(f"report: {report}", file=sys.stderr)
     else:
         print("\n".join(lines))

@@ -258,15 +258,16 @@ def plot_ranking(diag: Diagnosis, path: Path) -> None:
     fig, ax = plt.subplots(figsize=(8, 0.45 * len(rk) + 1.4))
     names = [c.label() for c in rk][::-1]  # two located thrusters: two bars
     vals = [c.fit.nrmse_validation for c in rk][::-1]  # type: ignore[union-attr]
-    finite = [v for v in vals if math.isfinite(v)] + [diag.baseline.nrmse_validation]
-    cap = 1.5 * max(v for v in finite if math.isfinite(v))
+    finite = [v for v in [*vals, diag.baseline.nrmse_validation] if math.isfinite(v)]
+    cap = 1.5 * max(finite) if finite else 1.0  # every fit diverged: the bars only name them
     names = [n + (" (diverged)" if not math.isfinite(v) else "") for n, v in zip(names, vals, strict=True)]
     vals = [v if math.isfinite(v) else cap for v in vals]
     colors = ["C3" if c.accepted else "C7" for c in rk][::-1]
     ax.barh(names, vals, color=colors)
-    ax.axvline(diag.baseline.nrmse_validation, color="C0", ls="--", label="baseline")
     ax.set_xlabel("held-out NRMSE (red: passes the acceptance rule)")
-    ax.legend(fontsize=8)
+    if math.isfinite(diag.baseline.nrmse_validation):
+        ax.axvline(diag.baseline.nrmse_validation, color="C0", ls="--", label="baseline")
+        ax.legend(fontsize=8)
     ax.grid(True, axis="x", alpha=0.3)
     ax.set_title(f"{diag.trial.name}: candidate effects")
     fig.tight_layout()
