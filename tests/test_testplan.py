@@ -261,6 +261,17 @@ def test_hardware_yaw_trial_over_ptys(tmp_path: Path) -> None:
     assert "hardware profile" in (out / "report.md").read_text()
 
 
+def test_non_physical_damping_is_never_written_as_a_vessel_file(tmp_path: Path,
+                                                                capsys: pytest.CaptureFixture[str]) -> None:
+    """At --scale 0.03 the yaw trial is too short and its fit gives a negative N_r: a vessel that
+    gains energy from the water, which would make every run with it diverge. No file; exit 1."""
+    assert main(["supply", "--axes", "yaw", "--scale", "0.03", "-o", str(tmp_path / "o")]) == 1
+    out = capsys.readouterr().out
+    assert "vessel file: not written: non-physical damping (N_r = -" in out
+    assert not (tmp_path / "o" / "supply_identified.yaml").exists()
+    assert "not written: non-physical damping" in (tmp_path / "o" / "report.md").read_text()
+
+
 @pytest.mark.parametrize("argv, needle", [
     (["titanic"], "vessel 'titanic': not a bundled vessel"),
     (["minerva2", "--hardware", "no_such_profile"], "--hardware no_such_profile"),
@@ -269,6 +280,9 @@ def test_hardware_yaw_trial_over_ptys(tmp_path: Path) -> None:
     (["supply", "--axes", "roll"], "--axes: 'roll' is not a trial of vessel 'supply'"),
     (["supply", "--axes", ","], "--axes: empty"),
     (["supply", "--scale", "0"], "--scale: must be in (0, 10], got 0"),
+    # shortened too far: phases that end before their events, trials with nothing to fit
+    (["supply", "--axes", "yaw", "--scale", "0.005"], "--scale 0.005 leaves the trials too short (yaw_"),
+    (["supply", "--scale", "0.02"], "--scale 0.02 leaves the trials too short to identify"),
     (["minerva2", "--hardware", "emulator_pty", "--axes", "roll"], "--axes: 'roll' is a release"),
 ])
 def test_bad_input_is_one_line_exit_2(argv: list[str], needle: str, tmp_path: Path,

@@ -31,7 +31,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run the plan; 0 when done, 2 on bad input or a failed run (one line)."""
+    """Run the plan; 0 when done, 1 when no vessel file could be written (non-physical damping), 2 on
+    bad input or a failed run (one line)."""
     # Imported here, not at the top: every `seafmu` command builds this parser, and the test plan's
     # identification stack (SciPy statistics) would add about 0.6 s to each of them.
     from seafmu.components.vessel_spec import VesselFileError, bundled_vessels
@@ -72,8 +73,8 @@ def run(args: argparse.Namespace) -> int:
         err = relative_error(row)
         diff = f"{100 * err:.2f} %" if err != float("inf") else f"abs {row['value']:.3g}"
         print(f"  {name:<10} {row['value']:>14.6g}   file {row['file']:>14.6g}   ({diff})")
-    print(f"report: {out / 'report.md'}; vessel file: {res.vessel_file}")
-    return 0
+    print(f"report: {out / 'report.md'}; vessel file: {res.vessel_file or res.not_written}")
+    return 0 if res.vessel_file else 1
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -93,7 +93,7 @@ def write_report(res: Any, out: Path) -> Path:
     L: list[str] = [f"# Test plan: {v.name}", ""]
     where = f"the vessel through hardware profile `{res.hardware}`" if res.hardware else \
         f"the plant ({res.mode}, sensors with the vessel file's noise)"
-    vf = res.vessel_file.name if res.vessel_file else "-"
+    vf = res.vessel_file.name if res.vessel_file else f"- ({res.not_written})"
     short = f" (phase durations x {res.scale:g}: a shortened plan)" if res.scale != 1.0 else ""
     L += [f"Run against {where}; {len(res.plans)} trials{short}, wall time {res.wall:.1f} s. "
           f"Identified vessel file: `{vf}`; trials for `seafmu identify`: `trials/`.", ""]

@@ -12,6 +12,7 @@ import numpy as np
 from seafmu.components.vessel_spec import VesselSpec, load_vessel
 from seafmu.identification.trial import write_trial
 from seafmu.identification.writeback import write_back
+from seafmu.scenario import ScenarioError
 from seafmu.testplan.design import TrialPlan, plan
 from seafmu.testplan.fit import AxisResult, coefficient_names, coupled_terms, identify_axis
 from seafmu.testplan.measure import Measurement, TestplanError, run_trial
@@ -27,6 +28,7 @@ class TestplanResult:
     results: dict[str, AxisResult]
     identified: dict[str, dict[str, Any]] = field(default_factory=dict)  # key -> value, truth, ...
     vessel_file: Path | None = None
+    not_written: str = ""  # why no vessel file was written (non-physical coefficients)
     trial_files: list[Path] = field(default_factory=list)
     wall: float = 0.0
     mode: str = "inprocess"
@@ -95,8 +97,17 @@ def write_outputs(res: TestplanResult, out: Path) -> None:
         prov[row["key"]] = f"{name}, identified by seafmu testplan from trial {row['trial']}{ci}"
         trials.append(row["trial"])
     prov["trial"] = ", ".join(dict.fromkeys(trials))
-    res.vessel_file = write_back(res.vessel.name, updates,
-                                 out / f"{res.vessel.name}_identified.yaml", prov)
+    # A diagonal damping term below zero is a vessel that gains energy from the water: such a file
+    # makes every later run diverge (a plan shortened too far gives one), so it is not written.
+    bad = [f"{name} = {row['value']:.4g}" for name, row in res.identified.items()
+           if row["kind"] == "diagonal" and not row["value"] >= 0.0]
+    target = out / f"{res.vessel.name}_identified.yaml"
+    if bad:
+        target.unlink(missing_ok=True)  # not an earlier run's file taken for this one's
+        res.not_written = (f"not written: non-physical damping ({', '.join(bad)}); the trials are too short "
+                           "or too noisy to identify it (a larger --scale, more trials)")
+        return
+    res.vessel_file = write_back(res.vessel.name, updates, target, prov)
 
 
 def select_axes(plans: list[TrialPlan], axes: list[str] | None, hardware: str | None,
@@ -138,9 +149,21 @@ def run_testplan(vessel_name: str, out: Path, hardware: str | None = None, mode:
         raise TestplanError(f"vessel '{vessel.name}': no axis the test plan can excite")
     out.mkdir(parents=True, exist_ok=True)
     measurements = {}
+    # a plan shortened too far: phases that end before their events, trials with no sample to fit
+    short = f"--scale {scale:g} leaves the trials too short"
     for tp in plans:
-        measurements[tp.name] = run_trial(tp, vessel, out / "scenarios", hardware, mode, seed)
-    results = identify_measurements(vessel, measurements)
+        try:
+            measurements[tp.name] = run_trial(tp, vessel, out / "scenarios", hardware, mode, seed)
+        except ScenarioError as exc:
+            if scale >= 1.0:
+                raise
+            why = " ".join(str(exc).split())
+            raise TestplanError(f"{short} ({tp.name}: {why}); use a larger one") from None
+    try:
+        results = identify_measurements(vessel, measurements)
+    except (IndexError, ValueError, ZeroDivisionError, np.linalg.LinAlgError) as exc:
+        what = f"{short} to identify" if scale < 1.0 else "the trials could not be identified"
+        raise TestplanError(f"{what} ({type(exc).__name__}: {' '.join(str(exc).split())})") from None
     res = TestplanResult(vessel, plans, measurements, results, mode=mode, hardware=hardware, scale=scale)
     res.identified = identified_table(vessel, results)
     write_outputs(res, out)
