@@ -489,12 +489,27 @@ def _check_text(kind: str | None, name: str, value: Any, path: Path, where: str)
         raise _fail(path, where, str(exc)) from None
 
 
-def _check_link(src: VarInfo, dst: VarInfo, left: str, right: str, path: Path, where: str) -> None:
+def _units_differ(a: VarInfo, b: VarInfo, both_ours: bool) -> bool:
+    """Between two of seafmu's own FMUs, which give every physical variable its unit, a variable
+    without one (a count, a flag) meets only another without one; an FMU from elsewhere may leave
+    units out, so there only two given units count."""
+    if both_ours:
+        return (a.unit or "") != (b.unit or "")
+    return bool(a.unit and b.unit and a.unit != b.unit)
+
+
+def _unit_text(v: VarInfo) -> str:
+    return f"in {v.unit}" if v.unit else "without a unit"
+
+
+def _check_link(src: VarInfo, dst: VarInfo, left: str, right: str, path: Path, where: str,
+                both_ours: bool = False) -> None:
+    """Types and units must match (``_units_differ``)."""
     if src.type != "real" or dst.type != "real":
         raise _fail(path, where,
                     f"only Real variables can be connected: {left} is {src.type}, {right} is {dst.type}")
-    if src.unit and dst.unit and src.unit != dst.unit:
-        raise _fail(path, where, f"unit mismatch: {left} is in {src.unit}, {right} in {dst.unit}")
+    if _units_differ(src, dst, both_ours):
+        raise _fail(path, where, f"unit mismatch: {left} is {_unit_text(src)}, {right} {_unit_text(dst)}")
 
 
 def _window(c: Check) -> str:
@@ -642,7 +657,8 @@ def resolve(model: ScenarioModel, path: Path, labels: dict[str, str] | None = No
                                 f"FMUs ({', '.join(src)}): connect it explicitly")
                 if src:
                     sinfo = by_name[src[0]].variables[v.name]
-                    _check_link(sinfo, v, f"{src[0]}.{v.name}", f"{inst.name}.{v.name}", path, "connect")
+                    _check_link(sinfo, v, f"{src[0]}.{v.name}", f"{inst.name}.{v.name}", path, "connect",
+                                both_ours=by_name[src[0]].kind is not None and inst.kind is not None)
                     connections[(inst.name, v.name)] = (src[0], v.name)
     explicit: set[tuple[str, str]] = set()
     for k, text in enumerate(model.connections):
@@ -655,7 +671,8 @@ def resolve(model: ScenarioModel, path: Path, labels: dict[str, str] | None = No
         if (di, dv) in explicit:
             raise _fail(path, where, f"{right} is already connected by an earlier line")
         explicit.add((di, dv))
-        _check_link(sinfo, dinfo, left, right, path, where)
+        _check_link(sinfo, dinfo, left, right, path, where,
+                    both_ours=by_name[si].kind is not None and by_name[di].kind is not None)
         connections[(di, dv)] = (si, sv)
 
     for inst in instances:  # a start value on a connected input: the connection overwrites it at once
@@ -723,14 +740,23 @@ def resolve(model: ScenarioModel, path: Path, labels: dict[str, str] | None = No
             outputs.append((inst, var))
             recorded.add((inst, var))
     for k, c in enumerate(model.checks):
+        pair = []
         for attr in ("signal", "minus"):
             ref = getattr(c, attr)
             if ref is None:
                 continue
             inst, var = recordable(ref, f"checks[{k}].{attr}")
+            pair.append((inst, var))
             if (inst, var) not in recorded:
                 outputs.append((inst, var))
                 recorded.add((inst, var))
+        if len(pair) == 2:  # metres minus radians measures nothing
+            (i1, v1), (i2, v2) = pair
+            a, b = by_name[i1].variables[v1], by_name[i2].variables[v2]
+            ours = by_name[i1].kind is not None and by_name[i2].kind is not None
+            if _units_differ(a, b, ours):
+                raise _fail(path, f"checks[{k}].minus", f"unit mismatch: {c.signal} is {_unit_text(a)}, "
+                            f"{c.minus} {_unit_text(b)}")
         if c.after >= model.duration:
             raise _fail(path, f"checks[{k}].after", f"{c.after} s is not before the end of the run")
         dt_rec = model.step * record_every
