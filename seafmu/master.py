@@ -573,11 +573,19 @@ def _loop(scenario: Scenario, units: list[Unit], mode: str, progress: bool, log:
     # closed loop settles where some FMU's initial outputs do not depend on its inputs (the plant's
     # on its thrust command); one that does not is left after as many rounds as FMUs. Then each FMU
     # leaves initialisation mode from the settled inputs.
+    quiet: set[int] = set()  # units that cannot be read in initialisation mode: initialised in order
     for _ in range(len(units)):
         before = bus.copy()
         for j, (u, sl) in enumerate(zip(units, out_slices, strict=True)):
-            y = u.initial_outputs(bus[src_idx[j]])
-            if y is not None:
+            if j in quiet:
+                continue
+            try:
+                y = u.initial_outputs(bus[src_idx[j]])
+            except SimulationError:  # an FMU that refuses it; its initialize below says what is wrong
+                y = None
+            if y is None:
+                quiet.add(j)
+            else:
                 bus[sl] = y
         if np.array_equal(bus, before, equal_nan=True):
             break
