@@ -97,10 +97,7 @@ def write_outputs(res: TestplanResult, out: Path) -> None:
         prov[row["key"]] = f"{name}, identified by seafmu testplan from trial {row['trial']}{ci}"
         trials.append(row["trial"])
     prov["trial"] = ", ".join(dict.fromkeys(trials))
-    # A diagonal damping term below zero is a vessel that gains energy from the water: such a file
-    # makes every later run diverge (a plan shortened too far gives one), so it is not written.
-    bad = [f"{name} = {row['value']:.4g}" for name, row in res.identified.items()
-           if row["kind"] == "diagonal" and not row["value"] >= 0.0]
+    bad = _gaining_energy(res)
     target = out / f"{res.vessel.name}_identified.yaml"
     if bad:
         target.unlink(missing_ok=True)  # not an earlier run's file taken for this one's
@@ -108,6 +105,27 @@ def write_outputs(res: TestplanResult, out: Path) -> None:
                            "or too noisy to identify it (a larger --scale, more trials)")
         return
     res.vessel_file = write_back(res.vessel.name, updates, target, prov)
+
+
+def _gaining_energy(res: TestplanResult) -> list[str]:
+    """The identified diagonal damping of the axes that would gain energy from the water at speed:
+    a quadratic term below zero, or a linear one below zero with no positive quadratic term to
+    outweigh it (a small negative linear term beside a quadratic one is a fit's usual trade and
+    dissipates above a crawl: Minerva 2's yaw over the ptys, N_r = -9 beside N_|r|r = 961). Such a
+    file makes every later run diverge (supply at --scale 0.03: N_r = -3.4e9, no quadratic term)."""
+    by_key = {row["key"]: (name, row["value"]) for name, row in res.identified.items()
+              if row["kind"] == "diagonal"}
+    bad = []
+    for j in range(len(res.vessel.nu_names)):
+        lin = by_key.get(f"linear_damping[{j}][{j}]")
+        quad = by_key.get(f"quadratic_damping[{j}][{j}]")
+        d_l = lin[1] if lin else float(res.vessel.D_L[j, j])
+        d_q = quad[1] if quad else float(res.vessel.D_Q[j, j])
+        if quad and not d_q >= 0.0:
+            bad.append(f"{quad[0]} = {d_q:.4g}")
+        elif lin and not d_l >= 0.0 and not d_q > 0.0:
+            bad.append(f"{lin[0]} = {d_l:.4g}")
+    return bad
 
 
 def select_axes(plans: list[TrialPlan], axes: list[str] | None, hardware: str | None,
