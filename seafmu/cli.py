@@ -322,8 +322,8 @@ def _user_errors() -> tuple[type[BaseException], ...]:
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     command = argv[0] if argv and not argv[0].startswith("-") else None
-    args = build_parser(command).parse_args(argv)
     try:
+        args = build_parser(command).parse_args(argv)  # inside: a Ctrl-C while it imports is one line too
         return args.fn(args)
     except KeyboardInterrupt:
         print("seafmu: interrupted", file=sys.stderr)

@@ -458,3 +458,17 @@ def test_an_fmu_file_that_unpacks_too_big_is_refused_before_it_is_unpacked(
     expected = r"fmus\.observer\.fmu: not a readable FMU \(unpacks to [0-9.]+ [kM]B; the limit is 100 kB\)"
     with pytest.raises(ScenarioError, match=expected):
         load_scenario(path)
+
+
+def test_ctrl_c_while_the_command_line_is_built_is_one_line(monkeypatch: pytest.MonkeyPatch,
+                                                             capsys: pytest.CaptureFixture[str]) -> None:
+    """A Ctrl-C in the first tenth of a second lands while the parser imports its commands: the
+    same one line and exit 130 as later, not Python's traceback."""
+    import seafmu.cli as cli
+
+    def interrupted(command: str | None) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "build_parser", interrupted)
+    assert cli.main(["run", "minerva2_dp"]) == 130
+    assert capsys.readouterr().err == "seafmu: interrupted\n"
