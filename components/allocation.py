@@ -167,6 +167,12 @@ def declared_law_name(vessel: VesselSpec) -> str:
     return vessel.gnc.allocator
 
 
+def check_allocator(name: Any, vessel: VesselSpec) -> None:
+    """ValueError unless ``name`` is a registered allocation variant that can serve ``vessel``."""
+    registry.check("allocator", name)
+    registry.allocator_law(name).check_vessel(vessel)
+
+
 def declared_law(vessel: VesselSpec) -> AllocationLaw:
     """The allocation law the vessel file names (``gnc.allocator``)."""
     return registry.allocator_law(declared_law_name(vessel))
@@ -408,6 +414,9 @@ class AllocationLaw:
         with 10); 100 made a start in a strong current drift away (docs/allocation.md)."""
         return {t: (10.0 if t in ("K", "M", "N") else 1.0) for t in vessel.tau_names}
 
+    def check_vessel(self, vessel: VesselSpec) -> None:
+        """ValueError if this law cannot serve the vessel's thrusters (default: every law can)."""
+
     def capability_matrix(self, vessel: VesselSpec, B: np.ndarray) -> tuple[list[int], np.ndarray]:
         """(rows, P) with T = P tau for a pure demand in one of the rows (default weights)."""
         return self.rows(vessel), allocation_matrix(B)
@@ -470,6 +479,17 @@ class TwoScrewLaw(AllocationLaw):
         out = super().priority_defaults(vessel)
         out["Y"] = 0.0
         return out
+
+    def check_vessel(self, vessel: VesselSpec) -> None:
+        """Two screws that make surge and yaw independently: else every step would fail."""
+        if "X" not in vessel.tau_names or "N" not in vessel.tau_names:
+            raise ValueError(f"allocator 'two_screw' needs surge and yaw (X, N); vessel '{vessel.name}' "
+                             f"has {', '.join(vessel.tau_names)}")
+        try:
+            self.capability_matrix(vessel, thruster_matrix(vessel.thrusters, vessel.dof))
+        except np.linalg.LinAlgError:
+            raise ValueError(f"allocator 'two_screw': the two thrusters of vessel '{vessel.name}' do not "
+                             "make surge and yaw independently") from None
 
     def capability_matrix(self, vessel: VesselSpec, B: np.ndarray) -> tuple[list[int], np.ndarray]:
         rows = self._rows(vessel)  # surge and yaw: the sway that comes with yaw is not a demand
@@ -606,17 +626,20 @@ class AllocatorBlock(Block):
         self._apply_params()
 
     # -- parameters ----------------------------------------------------------------------------
-    @staticmethod
-    def _check_variant(value: Any) -> None:
-        """The allocation variant must be registered (the registry's error names the known ones)."""
+    def _check_variant(self, value: Any) -> None:
+        """The allocation variant must be registered (the registry's error names the known ones) and
+        able to serve this vessel."""
         try:
-            registry.check("allocator", value)
+            check_allocator(value, self.vessel)
         except ValueError as exc:
             raise ValueError(f"allocator: parameter 'allocator': {exc}") from None
 
-    def set_parameter(self, name: str, value: Any) -> None:
+    def check_parameter(self, name: str, value: Any) -> None:
+        super().check_parameter(name, value)
         if name == "allocator":
             self._check_variant(value)
+
+    def set_parameter(self, name: str, value: Any) -> None:
         super().set_parameter(name, value)
         self._apply_params()
 

@@ -204,10 +204,34 @@ class Block(ABC):
         return capture(self)
 
     def import_state(self, state: dict[str, Any]) -> None:
-        """Write a tree from ``export_state`` back into this block, checked; all or nothing."""
-        from .state import restore
+        """Write a tree from ``export_state`` back into this block, checked; all or nothing.
 
+        The tree's structure is checked by ``restore``; its values then by ``check_restored``: if
+        that refuses them, the block gets its previous state back."""
+        from .state import StateError, capture, restore
+
+        before = capture(self)
         restore(self, state)
+        try:
+            self.check_restored()
+        except StateError:
+            restore(self, before)
+            raise
+
+    def check_restored(self) -> None:
+        """StateError if restored values break what the block's parameters imply. Why: an FMU state
+        comes from outside and its checksum is no signature; values that steer a loop (a sub-step
+        count) must be those the parameters gave. Indices are checked where they are used (the
+        kernels are bounds-checked). Here: the parameters themselves, as at construction."""
+        from .state import StateError
+
+        if not isinstance(self.params, dict) or self.params.keys() != set(self.iface.parameter_defaults()):
+            raise StateError(f"state: the {self.kind}'s parameters do not fit it")
+        for sig in self.iface.parameters:
+            try:
+                sig.check(self.params[sig.name], self.kind)
+            except ValueError as exc:
+                raise StateError(f"state: {exc}") from None
 
     def check_parameter(self, name: str, value: Any) -> None:
         """ValueError naming the parameter unless it exists, is tunable and ``value`` fits its Signal."""

@@ -140,9 +140,11 @@ class ControllerBlock(Block):
             self._check(name, value)
         self._apply_params()
 
-    def set_parameter(self, name: str, value: Any) -> None:
-        self.check_parameter(name, value)
+    def check_parameter(self, name: str, value: Any) -> None:
+        super().check_parameter(name, value)
         self._check(name, value)
+
+    def set_parameter(self, name: str, value: Any) -> None:
         super().set_parameter(name, value)
         self._apply_params()
 

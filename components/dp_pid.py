@@ -41,7 +41,7 @@ from .allocation import FORCE_UNIT, thrust_capability
 from .block import Interface, Signal
 from .controller import ControllerBlock, restoring_stiffness
 from .dynamics import coriolis_force, rpsi, rzyx, tzyx_inv
-from .guidance import PathGuidance, lawnmower, parse_waypoints
+from .guidance import MAX_LINES, PathGuidance, lawnmower, parse_waypoints
 from .kernels import control as control_kernel
 from .vessel_spec import VesselSpec, state_unit
 
@@ -206,8 +206,8 @@ class DPPidController(ControllerBlock):
         params += [
             Signal("waypoints", "", "waypoint list 'n1, e1; n2, e2; ...' (m); empty = the lawnmower below. "
                    "Read when waypoint mode is engaged", start="", type="string", tunable=True),
-            Signal("lm_lines", "", "lawnmower: number of lines", min=1, start=6, type="integer",
-                   tunable=True),
+            Signal("lm_lines", "", "lawnmower: number of lines", min=1, max=MAX_LINES, start=6,
+                   type="integer", tunable=True),
             Signal("lm_spacing", "m", "lawnmower: distance between lines", min=0.0, start=4.0, tunable=True),
             Signal("lm_length", "m", "lawnmower: length of a line", min=0.0, min_open=True, start=20.0,
                    tunable=True),

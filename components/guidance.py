@@ -42,6 +42,9 @@ RK4_DT_MAX = 0.05  # s: largest sub-step of the heading filter
 MIN_LEG = 1e-3  # m: shorter legs (e.g. the approach leg when the vessel starts on waypoint 1) are dropped
 
 
+MAX_LINES = 1000  # a survey of more lines is a list of waypoints; a bound keeps one step short
+
+
 def lawnmower(lines: int, spacing: float, length: float, heading: float,
               origin: Sequence[float] = (0.0, 0.0), side: int = 1) -> np.ndarray:
     """Waypoints (north, east) of a lawnmower survey: ``lines`` parallel lines of ``length`` metres.
@@ -50,8 +53,8 @@ def lawnmower(lines: int, spacing: float, length: float, heading: float,
     line is ``spacing`` metres to starboard (``side`` = 1) or port (-1) and runs the other way.
     Returns a (2 lines, 2) array: start and end of every line, in the order they are flown.
     """
-    if int(lines) != lines or lines < 1:
-        raise ValueError(f"lawnmower: lines must be a whole number >= 1, got {lines!r}")
+    if int(lines) != lines or not 1 <= lines <= MAX_LINES:
+        raise ValueError(f"lawnmower: lines must be a whole number from 1 to {MAX_LINES}, got {lines!r}")
     if not (length > 0.0 and math.isfinite(length)):
         raise ValueError(f"lawnmower: length must be positive, got {length!r}")
     if not (spacing >= 0.0 and math.isfinite(spacing)):

@@ -282,6 +282,15 @@ class PlantBlock(Block):
             s.refill()
         return self._y.copy()
 
+    def check_restored(self) -> None:
+        """The sub-step must be the parameter's: a crafted 1e-12 s would make one step loop for hours."""
+        from .state import StateError
+
+        super().check_restored()
+        if self._substep != float(self.params["substep"]):
+            raise StateError(f"state: plant sub-step {self._substep!r} s is not its parameter substep = "
+                             f"{self.params['substep']!r} s")
+
     def _inputs(self, u: np.ndarray | list[float]) -> list[float]:
         """``u`` as a list of floats; ValueError naming what is wrong (count, a non-finite value)."""
         ul = u.tolist() if isinstance(u, np.ndarray) else [float(c) for c in u]

@@ -85,12 +85,17 @@ def check(kind: str, name: Any) -> str:
     return name
 
 
-def check_text_parameter(name: str, value: str) -> None:
+def check_text_parameter(name: str, value: str, vessel: Any = None) -> None:
     """ValueError if a text parameter of seafmu's blocks holds what its block refuses when the FMU
-    initialises (an unknown variant, waypoints that do not parse), so that a scenario is refused when
-    it is checked, not when it runs (a sweep validates every case before any runs)."""
+    initialises (an unknown variant, one that cannot serve ``vessel`` (a VesselSpec) if given,
+    waypoints that do not parse), so that a scenario is refused when it is checked, not when it runs
+    (a sweep validates every case before any runs)."""
     if name == "allocator":
         check("allocator", value)
+        if vessel is not None:
+            from .allocation import check_allocator
+
+            check_allocator(value, vessel)
     elif name == "controller_variant":
         check("controller", value)
     elif name == "waypoints" and value.strip():

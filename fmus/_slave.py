@@ -318,6 +318,25 @@ class BlockSlave(Fmi2Slave):
             if n == name and vr in self._real_idx:
                 self._real[self._real_idx[vr]] = float(value)
 
+    def _check_all(self, vrs: list[int], values: list[Any]) -> None:
+        """Every parameter value of one set call checked before any is applied: a refused call
+        changes nothing (the FMI host is told the call failed, so it must not be half done)."""
+        block = self._block
+        if block is None or self._initialising:  # before the run every value is checked at its start
+            return
+        for vr, v in zip(vrs, values, strict=True):
+            name = self._param_vr.get(vr)
+            if name is None:
+                continue
+            value = float(v) if vr in self._real_idx else v
+            self._check_param(name, value)
+            block.check_parameter(name, value)
+
+    def _check_types(self, vrs: list[int], cls: type) -> None:
+        bad = [self.vars[vr].name for vr in vrs if not isinstance(self.vars[vr], cls)]
+        if bad:
+            raise TypeError(f"variable(s) {', '.join(bad)} are not of type {cls.__name__}")
+
     def _check_vrs(self, vrs: list[int]) -> None:
         # the wrapper passes unsigned value references as C ints: a huge one arrives negative
         if vrs and (min(vrs) < 0 or max(vrs) >= self._n_vars):
@@ -356,15 +375,19 @@ class BlockSlave(Fmi2Slave):
             self._u[vrs] = values
             self._sub_vrs, self._sub_idx = vrs, np.array(vrs, dtype=np.intp)
             return
+        for vr in vrs:  # all refusals before anything is set (see _check_all)
+            if vr >= n_in and vr not in self._param_vr:
+                if vr in self._real_idx:
+                    raise ValueError(f"variable {self.vars[vr].name} is an output and cannot be set")
+                raise TypeError(f"variable {self.vars[vr].name} is not of type Real")
+            if vr >= n_in and vr not in self._real_idx:
+                raise TypeError(f"variable {self.vars[vr].name} is not of type Real")
+        self._check_all(vrs, values)
         for vr, v in zip(vrs, values, strict=True):
             if vr < n_in:
                 self._u[vr] = v
-            elif vr in self._param_vr and vr in self._real_idx:
-                self._set_param(self._param_vr[vr], float(v))
-            elif vr in self._real_idx:
-                raise ValueError(f"variable {self.vars[vr].name} is an output and cannot be set")
             else:
-                raise TypeError(f"variable {self.vars[vr].name} is not of type Real")
+                self._set_param(self._param_vr[vr], float(v))
 
     @fmi_call
     def get_integer(self, vrs: list[int]) -> list[int]:
@@ -374,6 +397,9 @@ class BlockSlave(Fmi2Slave):
     @fmi_call
     def set_integer(self, vrs: list[int], values: list[int]) -> None:
         self._check_vrs(vrs)
+        if len(vrs) > 1:
+            self._check_types(vrs, Integer)
+            self._check_all(vrs, values)
         super().set_integer(vrs, values)
 
     @fmi_call
@@ -394,6 +420,9 @@ class BlockSlave(Fmi2Slave):
     @fmi_call
     def set_string(self, vrs: list[int], values: list[str]) -> None:
         self._check_vrs(vrs)
+        if len(vrs) > 1:
+            self._check_types(vrs, String)
+            self._check_all(vrs, values)
         super().set_string(vrs, values)
 
     # -- FMI life cycle ------------------------------------------------------------------------

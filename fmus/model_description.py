@@ -9,15 +9,25 @@ None), so this layer imports nothing from the layers above it.
 
 from __future__ import annotations
 
+import math
 import zipfile
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 from xml.etree import ElementTree as ET
 
 import pythonfmu
 
 BaseUnit = Callable[[str], "dict[str, str] | None"]
 
+
+
+def _bounds(sig: Any) -> tuple[float | None, float | None]:
+    """The declared range, or that of the allowed values (a host then knows the extremes)."""
+    if sig.choices is not None:
+        values = [float(c) for c in sig.choices]
+        return min(values), max(values)
+    return sig.min, sig.max
 
 def complete_model_description(fmu: Path, signals: dict, base_unit: BaseUnit,
                                tool: str = "seafmu build") -> None:
@@ -50,14 +60,24 @@ def complete_model_description(fmu: Path, signals: dict, base_unit: BaseUnit,
     outputs, initial_unknowns = [], []
     for index, sv in enumerate(root.find("ModelVariables"), start=1):
         sig = signals.get(sv.get("name"))
-        real = sv.find("Real")
+        real, integer = sv.find("Real"), sv.find("Integer")
         if sig is not None and real is not None:
             if sig.unit:
                 real.set("unit", sig.unit)
-            if sig.min is not None:
-                real.set("min", repr(float(sig.min)))
-            if sig.max is not None:
-                real.set("max", repr(float(sig.max)))
+            lo, hi = _bounds(sig)
+            if lo is not None:
+                # FMI's min is inclusive: an open bound (> 0) is the next number up, which is accepted
+                real.set("min", repr(math.nextafter(lo, math.inf) if sig.min_open and sig.choices is None
+                                     else float(lo)))
+            if hi is not None:
+                real.set("max", repr(float(hi)))
+        elif sig is not None and integer is not None:
+            lo, hi = _bounds(sig)
+            if lo is not None:
+                integer.set("min", str(math.floor(lo) + 1 if sig.min_open and sig.choices is None
+                                       else math.ceil(lo)))
+            if hi is not None:
+                integer.set("max", str(math.floor(hi)))
         if sv.get("causality") == "output":
             outputs.append(index)
             initial_unknowns.append(index)

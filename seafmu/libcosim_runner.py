@@ -104,6 +104,10 @@ _MARKED_METHODS = (
     "setup_experiment",
     "enter_initialization_mode",
     "exit_initialization_mode",
+    "get_real",  # in initialisation mode a seafmu FMU initialises when its outputs are read
+    "set_real",
+    "set_integer",
+    "set_string",
     "do_step",
     "terminate",
 )
@@ -456,13 +460,18 @@ def _run_isolated(spec: dict[str, Any], timeout: float | None) -> dict[str, np.n
 
 
 def _with_fmu_log(message: str, stderr: str) -> str:
-    """Append the last error an FMU logged (libcosim prints it, its exception omits it)."""
+    """Append the last error an FMU logged (libcosim prints it, its exception omits it), or the
+    exception a marked method raised (``_mark_fmu_errors``: e.g. a bad value an event set)."""
     logged = [
         line.split("[FMI status=", 1)[1].split("]", 1)[-1].strip()
         for line in stderr.splitlines()
         if "[FMI status=error" in line or "[FMI status=fatal" in line
     ]
-    if logged and logged[-1] not in message:
+    logged = [line for line in logged if line not in message]  # libcosim's own echo says nothing new
+    if not logged:
+        logged = [" ".join(line.split("\t")[1:]) for line in stderr.splitlines()
+                  if line.startswith(_FMU_ERROR_MARKER)]
+    if logged:
         return f"{message} (last FMU error log: {logged[-1]})"
     return message
 

@@ -476,15 +476,15 @@ def _convert(value: Any, info: VarInfo, path: Path, where: str) -> Any:
     return x
 
 
-def _check_text(kind: str | None, name: str, value: Any, path: Path, where: str) -> None:
-    """A text parameter of seafmu's own FMUs checked as its block will check it (components.registry);
-    an FMU from elsewhere (no kind) is the judge of its own."""
+def _check_text(kind: str | None, name: str, value: Any, path: Path, where: str, spec: Any) -> None:
+    """A text parameter of seafmu's own FMUs checked as its block will check it (components.registry),
+    for the scenario's vessel ``spec``; an FMU from elsewhere (no kind) is the judge of its own."""
     if kind is None or not isinstance(value, str):
         return
     from seafmu.components.registry import check_text_parameter
 
     try:
-        check_text_parameter(name, value)
+        check_text_parameter(name, value, spec)
     except ValueError as exc:
         raise _fail(path, where, str(exc)) from None
 
@@ -610,7 +610,7 @@ def resolve(model: ScenarioModel, path: Path, labels: dict[str, str] | None = No
             if info.causality not in ("parameter", "input"):
                 raise _fail(path, field, f"is an {info.causality}; it cannot be set")
             params[pname] = _convert(value, info, path, field)
-            _check_text(e.kind, pname, params[pname], path, field)
+            _check_text(e.kind, pname, params[pname], path, field, spec)
         if seed is not None:
             for v in variables.values():
                 if v.causality == "parameter" and (v.name == "seed" or v.name.endswith("_seed")):
@@ -698,7 +698,7 @@ def resolve(model: ScenarioModel, path: Path, labels: dict[str, str] | None = No
             raise _fail(path, where, f"time {ev.time} s is not on the step grid ({model.step} s)")
         value_field = where if where.startswith("--set") else f"{where}.value"
         value = _convert(ev.value, info, path, value_field)
-        _check_text(by_name[inst].kind, var, value, path, value_field)
+        _check_text(by_name[inst].kind, var, value, path, value_field, spec)
         events.append((ev.time, inst, var, value))
     events.sort(key=lambda e: e[0])
 

@@ -459,3 +459,107 @@ def test_every_fmu_describes_its_step_limit(built_fmus: dict) -> None:
     for v in VESSELS:
         for k in KINDS:
             assert "0 < h <= 10 s" in read_model_description(str(built_fmus[(v, k)])).description
+
+
+def test_a_refused_set_call_changes_nothing(built_fmus: dict) -> None:
+    """fmi2SetReal/Integer of several values, one refused: fmi2Fatal, and the others not applied."""
+    path = built_fmus[("minerva2", "plant")]
+    fmu, vr, log = _open(path)
+    assert _step(fmu, 0.0, 0.05) == FMI_OK
+    calls = (
+        (fmu.setReal, [vr["current_speed"], vr["wave_hs"]], [0.5, -1.0], "wave_hs"),
+        (fmu.setReal, [vr["n_cmd_1"], vr["north"]], [7.0, 1.0], "north"),  # an output
+        (fmu.setInteger, [vr["fail_mode_1"], vr["fail_mode_2"]], [1, 99], "fail_mode_2"),
+    )
+    for setter, refs, values, named in calls:
+        getter = fmu.getInteger if setter == fmu.setInteger else fmu.getReal
+        before = getter(refs[:1])
+        with pytest.raises(FMICallException):
+            setter(refs, values)
+        assert named in log.errors()[-1]
+        assert getter(refs[:1]) == before, named
+    fmu.setReal([vr["current_speed"], vr["wave_hs"]], [0.5, 1.0])  # both valid: both applied
+    assert fmu.getReal([vr["current_speed"], vr["wave_hs"]]) == [0.5, 1.0]
+    assert _step(fmu, 0.05, 0.05) == FMI_OK
+    _close(fmu)
+
+
+def _crafted_state(fmu: FMU2Slave, path: Path, change: object) -> bytes:
+    """This FMU's own state with values changed and its checksum recomputed: a SHA-256 is no
+    signature, anyone can write such bytes."""
+    from seafmu.fmus import _state
+
+    guid = read_model_description(str(path)).guid
+    tree = _state.decode(fmu.serializeFMUstate(fmu.getFMUstate()), guid)
+    change(tree["block"]["attrs"])  # type: ignore[operator]
+    return _state.encode(tree, guid)
+
+
+def test_a_crafted_state_with_an_index_out_of_range_is_a_discarded_step(built_fmus: dict) -> None:
+    """The kernels index arrays with positions kept in the state: out of range they raise (the
+    process used to die of SIGSEGV, or its heap was silently corrupted)."""
+    path = built_fmus[("minerva2", "plant")]
+    fmu, _, log = _open(path)
+    assert _step(fmu, 0.0, 0.05) == FMI_OK
+
+    def far(attrs: dict) -> None:
+        attrs["_layout"]["value"][:] = 10**12
+
+    fmu.setFMUstate(fmu.deSerializeFMUstate(_crafted_state(fmu, path, far)))
+    assert _step(fmu, 0.05, 0.05) == FMI_DISCARD
+    assert "out of bounds" in log.errors()[-1]
+    _close(fmu)
+
+
+def test_a_crafted_state_that_would_loop_for_hours_is_refused(built_fmus: dict) -> None:
+    """A sub-step of 1e-12 s (the parameter still 0.01 s, or both changed) would make one step
+    loop for hours: the restored values must be those the parameters give, and fit them."""
+    path = built_fmus[("minerva2", "plant")]
+    fmu, _, log = _open(path)
+    assert _step(fmu, 0.0, 0.05) == FMI_OK
+    expected = _outputs(fmu, path)
+
+    def substep(attrs: dict) -> None:
+        attrs["_substep"] = 1e-12
+
+    def both(attrs: dict) -> None:
+        attrs["_substep"] = 1e-12
+        attrs["params"]["items"] = [[k, 1e-12 if k == "substep" else v] for k, v in attrs["params"]["items"]]
+
+    for change, why in ((substep, "sub-step 1e-12 s is not its parameter"), (both, "'substep' must be")):
+        with pytest.raises(FMICallException):
+            fmu.setFMUstate(fmu.deSerializeFMUstate(_crafted_state(fmu, path, change)))
+        assert why in log.errors()[-1], log.errors()[-1]
+        np.testing.assert_array_equal(_outputs(fmu, path), expected)  # the instance is as it was
+    assert _step(fmu, 0.05, 0.05) == FMI_OK
+    _close(fmu)
+
+
+@pytest.mark.parametrize("vessel", ["minerva2", "supply"])
+def test_an_allocator_that_cannot_serve_the_vessel_is_refused(built_fmus: dict, vessel: str) -> None:
+    path = built_fmus[(vessel, "allocator")]
+    fmu, vr, log = _open(path)
+    assert _step(fmu, 0.0, 0.05) == FMI_OK
+    with pytest.raises(FMICallException):
+        fmu.setString([vr["allocator"]], ["two_screw"])
+    assert "'allocator'" in log.errors()[-1] and "two thrusters" in log.errors()[-1]
+    assert _step(fmu, 0.05, 0.05) == FMI_OK  # still allocating with its own variant
+    _close(fmu)
+
+
+def test_declared_bounds_are_those_the_fmu_accepts(built_fmus: dict) -> None:
+    """Integer parameters carry min/max; an open bound (> 0) is declared as the next number up,
+    which the FMU accepts (FMI's min is inclusive); the number of lawnmower lines is bounded."""
+    path = built_fmus[("minerva2", "controller")]
+    md = read_model_description(str(path))
+    var = {v.name: v for v in md.modelVariables}
+    assert (var["mode"].min, var["mode"].max) == ("0", "5")
+    assert var["lm_lines"].max is not None and int(var["lm_lines"].max) <= 1000
+    ref_omega = float(var["ref_omega"].min)
+    assert 0.0 < ref_omega < 1e-300
+    fmu, vr, log = _open(path, {"ref_omega": 1.0})
+    assert _step(fmu, 0.0, 0.05) == FMI_OK
+    with pytest.raises(FMICallException):
+        fmu.setInteger([vr["lm_lines"]], [int(var["lm_lines"].max) + 1])
+    assert "lm_lines" in log.errors()[-1]
+    _close(fmu)

@@ -142,5 +142,10 @@ _install_env_fallback()
 
 
 def kernel(fn: Callable[..., Any]) -> Callable[..., Any]:
-    """``numba.njit`` with the content-keyed disk cache (and no fastmath: results must equal NumPy's)."""
-    return numba.njit(cache=True, nogil=True)(fn)
+    """``numba.njit`` with the content-keyed disk cache (and no fastmath: results must equal NumPy's).
+
+    Bounds-checked: the kernels index arrays with positions a block keeps in its state, and an FMU
+    state comes from outside (fmi2DeSerializeFMUstate). A crafted one with an index out of range
+    then raises IndexError (the step is discarded) instead of writing outside an array (SIGSEGV,
+    or a silently corrupted heap). Measured: no difference in minerva2_dp's real-time factor."""
+    return numba.njit(cache=True, nogil=True, boundscheck=True)(fn)
