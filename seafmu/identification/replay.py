@@ -151,7 +151,7 @@ def _replay_timeseries(trial: Trial, fit: FitResult, old: VesselSpec, new: Vesse
             if model.family == "sway_yaw":
                 force = np.asarray(p.u, dtype=float).reshape(len(p.t), 2)
             else:
-                f, _ = timeseries.generalised_force(values, model, p.t, p.u, p.uniform)
+                f, _ = timeseries.generalised_force(values, model, p.t, p.u, p.uniform, p.before)
                 force[:, 0] = f
         ys.append(np.asarray(p.y, dtype=float).reshape(len(p.t), -1))
         for key, spec in (("old", old), ("new", new)):

@@ -166,7 +166,8 @@ def _step(hid: Hiding, A: float, noisy: Noisy, name: str) -> Trial:
     for i, lv in enumerate(levels):
         t = np.arange(0, 48.0, 0.1)
         u = A * np.array(lv)[np.minimum((t // 8).astype(int), len(lv) - 1)]
-        y = timeseries.simulate(model, truth, t, u, (0.0,), substeps=10)
+        # from rest, the first command switched on at t = 0 (as the fit reads such a run)
+        y = timeseries.simulate(model, truth, t, u, (0.0,), substeps=10, before=0.0)
         runs.append(Run(f"steps{i + 1}", noisy(y), t, u))
     return make_trial("step", runs, dof="surge", baseline=hid.baseline or "linear_quadratic",
                       constants={"mass": SURGE["M"], **hid.constants}, name=name, input_kind=input_kind)

@@ -97,11 +97,27 @@ class _Prep:
     accel: np.ndarray | None = None
     uniform: bool = True
     h: float = 0.0
+    before: float | None = None  # the command before the first sample (command_before)
 
     def __post_init__(self) -> None:
         d = np.diff(self.t)
         self.h = float(np.median(d)) if d.size else 0.0
         self.uniform = bool(d.size and np.allclose(d, self.h, rtol=1e-6, atol=1e-12))
+        self.before = command_before(self.u, self.y)
+
+
+def command_before(u: np.ndarray | None, y: np.ndarray) -> float | None:
+    """0.0 when a run starts at rest with its command already on (a step logged from the instant of
+    the step: before it the command was 0, as a step trial starts from rest); None where the run
+    starts in motion (steady state under its first command, which a lag or delay then holds).
+    At rest: the first output within a tenth of the largest (noise of a few per cent passes)."""
+    if u is None:
+        return None
+    u0 = np.asarray(u, dtype=float).reshape(len(y), -1)[0]
+    ya = np.abs(np.asarray(y, dtype=float))
+    if not u0.any() or ya.size == 0 or ya.ndim != 1:
+        return None
+    return 0.0 if ya[0] <= 0.1 * ya.max() else None
 
 
 def _stages() -> list[effects.CatalogueEffect]:
@@ -134,9 +150,9 @@ def thrust(v: dict[str, float], law: str, n: np.ndarray, extra_terms: bool = Tru
 
 
 def generalised_force(v: dict[str, float], model: TSModel, t: np.ndarray, u: np.ndarray | None,
-                      uniform: bool = True) -> tuple[np.ndarray, bool]:
+                      uniform: bool = True, before: float | None = None) -> tuple[np.ndarray, bool]:
     """Force from the command through the effects' input chain (delay, deadband, saturation, lag)
-    and the thrust law.
+    and the thrust law; ``before``: the command before the first sample (``command_before``).
 
     Returns the force at the samples and whether it varies continuously between them (after a lag),
     in which case the integrator interpolates instead of holding it.
@@ -146,7 +162,7 @@ def generalised_force(v: dict[str, float], model: TSModel, t: np.ndarray, u: np.
     x = np.asarray(u, dtype=float)
     continuous = False
     for obj in _stages():
-        x, cont = obj.command(t, x, v, uniform)
+        x, cont = obj.command(t, x, v, uniform, before)
         continuous = continuous or cont
     if model.input_kind == "force":
         return x, continuous
@@ -360,8 +376,10 @@ def _sim_sway_yaw(t: np.ndarray, tau: np.ndarray, v: dict[str, float], v0: float
 
 
 def simulate(model: TSModel, values: dict[str, float], t: np.ndarray, u: np.ndarray | None,
-             ic: tuple[float, ...], substeps: int = 1, uniform: bool | None = None) -> np.ndarray:
-    """Simulated output at the sample times t from initial state ic.
+             ic: tuple[float, ...], substeps: int = 1, uniform: bool | None = None,
+             before: float | None = None) -> np.ndarray:
+    """Simulated output at the sample times t from initial state ic; ``before``: the command
+    before the first sample (``command_before``).
 
     substeps > 1 integrates on a finer grid (command held between samples): used to generate test
     data with a different integrator step than the fit uses.
@@ -374,14 +392,14 @@ def simulate(model: TSModel, values: dict[str, float], t: np.ndarray, u: np.ndar
         if u is not None:
             idx = np.minimum(np.searchsorted(t, tf, side="right") - 1, len(t) - 1)
             uf = np.asarray(u)[idx]
-        return simulate(model, values, tf, uf, ic)[::substeps]
+        return simulate(model, values, tf, uf, ic, before=before)[::substeps]
     if uniform is None:
         d = np.diff(t)
         uniform = bool(d.size and np.allclose(d, d[0], rtol=1e-6))
     if model.family == "sway_yaw":
         tau = np.zeros((len(t), 2)) if u is None else np.asarray(u, dtype=float)
         return _sim_sway_yaw(t, tau, values, *ic)
-    tau, interp = generalised_force(values, model, t, u, uniform)
+    tau, interp = generalised_force(values, model, t, u, uniform, before)
     if model.family == "first":
         return np.array(_sim_first(t, tau, interp, values, ic[0]))
     if model.family == "pendulum":
@@ -546,8 +564,8 @@ def equation_error(model: TSModel, preps: list[_Prep]) -> dict[str, float]:
             M = vals["M"] + vals["m_a"]
             probe = dict(vals)
             probe.update({"k": 1.0, **_thrust_term_neutrals()})
-            g, _ = generalised_force(probe, model, p.t, p.u, p.uniform)
-            fixed, _ = generalised_force(vals, model, p.t, p.u, p.uniform)
+            g, _ = generalised_force(probe, model, p.t, p.u, p.uniform, p.before)
+            fixed, _ = generalised_force(vals, model, p.t, p.u, p.uniform, p.before)
             cols = {"k": g, **_effect_columns("first", None, x, xd, p.u)}
             known = M * xd - (fixed if "k" not in model.free else 0.0)
             known = known + vals["d_L"] * x * ("d_L" not in model.free) + vals["d_Q"] * x * np.abs(x) * (
@@ -636,7 +654,7 @@ def effect_grid(effect: str, model: TSModel, vals: dict[str, float],
 # -- fitting ----------------------------------------------------------------------------------------
 
 def _outputs(model: TSModel, vals: dict[str, float], p: _Prep, ic: tuple[float, ...]) -> np.ndarray:
-    return simulate(model, vals, p.t, p.u, ic, uniform=p.uniform)
+    return simulate(model, vals, p.t, p.u, ic, uniform=p.uniform, before=p.before)
 
 
 def _weights(model: TSModel, preps: list[_Prep]) -> np.ndarray | None:

@@ -14,16 +14,21 @@ if TYPE_CHECKING:
     from seafmu.identification.trial import Trial
 
 
-def first_order_lag(t: np.ndarray, x: np.ndarray, T: float, uniform: bool) -> np.ndarray:
-    """First-order lag, exact for a command held constant between samples; starts in steady state."""
+def first_order_lag(t: np.ndarray, x: np.ndarray, T: float, uniform: bool,
+                    before: float | None = None) -> np.ndarray:
+    """First-order lag, exact for a command held constant between samples; starts in steady state
+    at ``before`` (None: at the first sample's command). Why it matters: a step from rest logged
+    from the instant of the step has thrust 0 at t0, not the full command; starting at the command
+    there biased T_lag low by a quarter and named a time delay instead."""
     if T <= 0:
         return x
+    y0 = x[0] if before is None else before
     if uniform:
         a = math.exp(-(t[1] - t[0]) / T)
-        y, _ = lfilter([0.0, 1.0 - a], [1.0, -a], x, zi=[x[0]])
+        y, _ = lfilter([0.0, 1.0 - a], [1.0, -a], x, zi=[y0])
         return y
     y = np.empty_like(x)
-    y[0] = x[0]
+    y[0] = y0
     for i in range(len(x) - 1):
         a = math.exp(-(t[i + 1] - t[i]) / T)
         y[i + 1] = a * y[i] + (1 - a) * x[i]
@@ -56,10 +61,10 @@ class ActuatorLag(CatalogueEffect):
         return (f"thrust builds up with a first-order lag of {fmt(params.get('T_lag', 0))} s after the "
                 f"command (shaft/actuator dynamics)")
 
-    def command(self, t: np.ndarray, x: np.ndarray, v: dict[str, float], uniform: bool) -> tuple[
-            np.ndarray, bool]:
+    def command(self, t: np.ndarray, x: np.ndarray, v: dict[str, float], uniform: bool,
+                before: float | None = None) -> tuple[np.ndarray, bool]:
         lag = v.get("T_lag", 0.0)
-        return first_order_lag(t, x, lag, uniform), lag > 0
+        return first_order_lag(t, x, lag, uniform, before), lag > 0
 
     def hide(self, kind: str, amplitude: float) -> Hiding:
         return Hiding(truth={"T_lag": 0.8})

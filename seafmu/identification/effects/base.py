@@ -175,10 +175,12 @@ class CatalogueEffect(ABC):
         """A table's input (speed or shaft speed) as the model sees it."""
         return x
 
-    def command(self, t: np.ndarray, x: np.ndarray, v: dict[str, float], uniform: bool) -> tuple[
-            np.ndarray, bool]:
+    def command(self, t: np.ndarray, x: np.ndarray, v: dict[str, float], uniform: bool,
+                before: float | None = None) -> tuple[np.ndarray, bool]:
         """A time series' command as the thruster sees it, and whether it now varies continuously
-        between samples (after a lag)."""
+        between samples (after a lag). ``before``: the command before the first sample (0.0 when
+        the run starts at rest with the command just switched on), None = the first sample's, held
+        (the run starts in steady state)."""
         return x, False
 
     def thrust_law(self, n: np.ndarray, v: dict[str, float]) -> np.ndarray | None:

@@ -71,8 +71,8 @@ class Deadband(CatalogueEffect):
         n0 = v.get("n_0", 0.0)
         return np.sign(x) * np.maximum(np.abs(x) - n0, 0.0) if n0 > 0 else x
 
-    def command(self, t: np.ndarray, x: np.ndarray, v: dict[str, float], uniform: bool) -> tuple[
-            np.ndarray, bool]:
+    def command(self, t: np.ndarray, x: np.ndarray, v: dict[str, float], uniform: bool,
+                before: float | None = None) -> tuple[np.ndarray, bool]:
         return self.static_input(x, v), False
 
     def hide(self, kind: str, amplitude: float) -> Hiding:

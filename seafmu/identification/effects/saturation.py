@@ -74,8 +74,8 @@ class Saturation(CatalogueEffect):
         us = v.get("u_sat", math.inf)
         return np.clip(x, -us, us) if math.isfinite(us) else x
 
-    def command(self, t: np.ndarray, x: np.ndarray, v: dict[str, float], uniform: bool) -> tuple[
-            np.ndarray, bool]:
+    def command(self, t: np.ndarray, x: np.ndarray, v: dict[str, float], uniform: bool,
+                before: float | None = None) -> tuple[np.ndarray, bool]:
         return self.static_input(x, v), False
 
     def hide(self, kind: str, amplitude: float) -> Hiding:

@@ -39,10 +39,13 @@ class TimeDelay(CatalogueEffect):
     def evidence(self, params: dict[str, float], trial: Trial) -> str:
         return f"the response starts {fmt(params.get('t_d', 0))} s after the command (transport delay)"
 
-    def command(self, t: np.ndarray, x: np.ndarray, v: dict[str, float], uniform: bool) -> tuple[
-            np.ndarray, bool]:
+    def command(self, t: np.ndarray, x: np.ndarray, v: dict[str, float], uniform: bool,
+                before: float | None = None) -> tuple[np.ndarray, bool]:
         td = v.get("t_d", 0.0)
-        return (np.interp(t - td, t, x) if td > 0 else x), False
+        if td <= 0:
+            return x, False
+        # before the log: the command before it (None: the first sample's, held)
+        return np.interp(t - td, t, x, left=x[0] if before is None else before), False
 
     def hide(self, kind: str, amplitude: float) -> Hiding:
         return Hiding(truth={"t_d": 0.5})
