@@ -778,15 +778,17 @@ def test_pinv_step_is_its_parts(vessel) -> None:
 
     for trial in range(20):
         u = rng.normal(size=d + 4) * T_max.mean() * 2
-        y, Tc = np.zeros(3 * m + d + 3), np.empty(m)
+        # outputs' six groups, the camera sum at k + 1 + m and the QP iterations at k + 3 + m (the last)
+        y, Tc = np.full(3 * m + d + 4, np.nan), np.empty(m)
         ok = alloc.pinv_step(u, *rest(y))
         assert ok
         tau = u[tau_idx]
         T, Tr, sat = np.empty(m), np.empty(m), np.empty(m, dtype=bool)
         alloc.pinv_clip(P, tau, zeros_d, zeros_m, False, lo, hi, T, Tr, sat)
-        yr = np.zeros_like(y)
+        yr = np.full_like(y, np.nan)
         alloc.outputs(Tr, tau, B, p.th, int(p.flags[1]), th.n_max, off, False, sat, yr, pos)
         yr[k + 1 + m] = float(sum(-Tr[i] for i in camera if Tr[i] < 0.0))
+        yr[k + 3 + m] = 0.0
         np.testing.assert_array_equal(Tc, Tr)
         np.testing.assert_array_equal(y, yr)
         if trial == 0:
