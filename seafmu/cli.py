@@ -331,8 +331,16 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as exc:
         if not isinstance(exc, _user_errors()):
             raise
-        print(f"seafmu: error: {one_line(str(exc))}", file=sys.stderr)
+        print(f"seafmu: error: {one_line(_describe(exc))}", file=sys.stderr)
         return 2
+
+
+def _describe(exc: BaseException) -> str:
+    """An OSError as '<file>: <what is wrong>' (its str is '[Errno 17] File exists: '<file>''),
+    the format of every other error."""
+    if isinstance(exc, OSError) and exc.strerror and exc.filename is not None:
+        return f"{exc.filename}: {exc.strerror[:1].lower()}{exc.strerror[1:]}"
+    return str(exc)
 
 
 if __name__ == "__main__":

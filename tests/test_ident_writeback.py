@@ -160,3 +160,29 @@ def test_close_the_loop_identify_write_back_and_replay(tmp_path: Path) -> None:
 
     before, after = replay_nrmse("minerva2"), replay_nrmse(written)
     assert before > 0.03 and after < before / 20.0, (before, after)
+
+
+def _maneuver_fit(d_l: float, warnings: list[str]) -> FitResult:
+    names = ["D_L[0,0]", "D_Q[0,0]", "D_L[5,5]"]
+    vals = {"D_L[0,0]": d_l, "D_Q[0,0]": 200.0, "D_L[5,5]": 10.0}
+    return FitResult(params=vals, ci95={n: (v - 1.0, v + 1.0) for n, v in vals.items()},
+                     correlation=np.eye(3), param_names=names, nonidentifiable=[], nrmse_fit=0.1,
+                     nrmse_validation=0.1, aic=0.0, bic=0.0, whiteness={}, warnings=warnings,
+                     n_samples=100, method="ls")
+
+
+def test_maneuver_write_back_never_writes_energy_injecting_damping(tmp_path: Path) -> None:
+    """A negative diagonal damping is written as 0 and said so (as for 1-2-DOF trials); a fit that
+    diverges when simulated writes no vessel file at all (every later run would diverge)."""
+    from types import SimpleNamespace
+
+    from seafmu.identification.writeback import write_vessel_file
+
+    trial = SimpleNamespace(kind="maneuver", vessel="minerva2", name="log")
+    msg, path = write_vessel_file(trial, _maneuver_fit(-28.9, []), tmp_path / "v.yaml", "ls")  # type: ignore[arg-type]
+    assert path is not None and "linear_damping[0][0] = -28.9 < 0 is unphysical: written as 0" in msg
+    spec = load_vessel(path)
+    assert spec.D_L[0, 0] == 0.0 and spec.D_Q[0, 0] == 200.0 and spec.D_L[5, 5] == 10.0
+    warn = ["the fitted model diverges when simulated against the trial (unstable)"]
+    msg, path = write_vessel_file(trial, _maneuver_fit(5.0, warn), tmp_path / "w.yaml", "ls")  # type: ignore[arg-type]
+    assert path is None and msg.startswith("write-back refused") and not (tmp_path / "w.yaml").exists()

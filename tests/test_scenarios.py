@@ -67,3 +67,12 @@ def test_default_run_writes_results_report_and_plots(built_fmus: dict, tmp_path:
     summary = json.loads((out / "summary.json").read_text())
     assert summary["scenario"] == DEFAULT and len(summary["checks"]) >= 3
     assert all(c["passed"] for c in summary["checks"])
+
+
+def test_an_output_folder_that_is_a_file_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    """An OSError reads as every other error: '<file>: <what is wrong>', not '[Errno 17] ...'."""
+    taken = tmp_path / "taken"
+    taken.write_text("not a folder")
+    assert main(["run", "minerva2_dp", "-q", "-o", str(taken)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == f"seafmu: error: {taken}: file exists", err

@@ -272,6 +272,18 @@ def updates_from_fit(fit: FitResult, vessel: VesselSpec, entries: str = "diagona
     return updates, prov
 
 
+def _clamp_negative_damping(updates: dict[str, float]) -> list[str]:
+    """Negative diagonal damping (energy injected along that DOF) written as 0, as for 1-2-DOF
+    trials; the notes say which. Off-diagonal couplings may be negative."""
+    notes = []
+    for key, val in updates.items():
+        m = re.match(r"^(linear_damping|quadratic_damping)\[(\d+)\]\[(\d+)\]$", key)
+        if m and m.group(2) == m.group(3) and val < 0:
+            notes.append(f"fitted {key} = {val:.4g} < 0 is unphysical: written as 0")
+            updates[key] = 0.0
+    return notes
+
+
 # -- writing back into a vessel file --------------------------------------------------------------
 
 def vessel_updates(trial: Trial, fit: FitResult, vessel_dof: int) -> tuple[dict[str, float], dict[str, str],
@@ -336,12 +348,21 @@ def write_vessel_file(trial: Trial, fit: FitResult, out_path: Path, method: str,
 
     spec = load_vessel(name)
     if trial.kind == "maneuver":  # the maneuver module knows its own parameter names
+        diverged = [w for w in fit.warnings if "diverges when simulated" in w]
+        if diverged:  # a vessel file from it would make every later run diverge too
+            return ("write-back refused: the fitted model diverges when simulated against the trial; no "
+                    "vessel file written (a log that excites every DOF, or --method output_error: "
+                    "docs/maneuver_identification.md)"), None
         updates, mprov = updates_from_fit(fit, spec, trial=trial.name)
         if not updates:
             return "write-back skipped: the maneuver fit has no vessel-file parameters", None
+        notes = _clamp_negative_damping(updates)
         mprov = {**mprov, "date": _dt.date.today().isoformat(), "method": method}
+        if notes:
+            mprov["note"] = "; ".join(notes)
         path = write_back(name, updates, out_path, mprov)
-        return f"wrote {len(updates)} entries ({', '.join(sorted(updates)[:6])}, ...) to {path}", path
+        extra = f" ({'; '.join(notes)})" if notes else ""
+        return f"wrote {len(updates)} entries ({', '.join(sorted(updates)[:6])}, ...) to {path}{extra}", path
     updates, origin, notes = vessel_updates(trial, fit, spec.dof)
     if not updates:
         return "write-back skipped: " + "; ".join(notes or ["nothing to write"]), None
