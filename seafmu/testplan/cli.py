@@ -16,7 +16,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                     "axis_trial controller holding the other DOFs, roll/pitch release decays; identifies "
                     "the damping (diagonal and the coupled Y_r, N_v), writes the trials, a vessel file with "
                     "the identified damping and a report (docs/testplan.md).")
-    p.add_argument("vessel", help="bundled vessel name (supply, minerva2)")
+    p.add_argument("vessel", help="bundled vessel name (amv_osf, minerva2, minerva2_published_damping, "
+                   "supply)")
     p.add_argument("--hardware", metavar="PROFILE", help="run against a vessel through this hardware link "
                    "profile (real time) instead of the plant")
     p.add_argument("-o", "--output", type=Path, help="output folder (default results/testplan_<vessel>)")
