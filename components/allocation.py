@@ -482,9 +482,6 @@ class TwoScrewLaw(AllocationLaw):
 
     def check_vessel(self, vessel: VesselSpec) -> None:
         """Two screws that make surge and yaw independently: else every step would fail."""
-        if "X" not in vessel.tau_names or "N" not in vessel.tau_names:
-            raise ValueError(f"allocator 'two_screw' needs surge and yaw (X, N); vessel '{vessel.name}' "
-                             f"has {', '.join(vessel.tau_names)}")
         try:
             self.capability_matrix(vessel, thruster_matrix(vessel.thrusters, vessel.dof))
         except np.linalg.LinAlgError:

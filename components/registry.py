@@ -91,8 +91,9 @@ def check_text_parameter(name: str, value: str, vessel: Any = None) -> None:
     waypoints that do not parse), so that a scenario is refused when it is checked, not when it runs
     (a sweep validates every case before any runs)."""
     if name == "allocator":
-        check("allocator", value)
-        if vessel is not None:
+        if vessel is None:
+            check("allocator", value)
+        else:
             from .allocation import check_allocator
 
             check_allocator(value, vessel)

@@ -376,12 +376,11 @@ class BlockSlave(Fmi2Slave):
             self._sub_vrs, self._sub_idx = vrs, np.array(vrs, dtype=np.intp)
             return
         for vr in vrs:  # all refusals before anything is set (see _check_all)
-            if vr >= n_in and vr not in self._param_vr:
-                if vr in self._real_idx:
-                    raise ValueError(f"variable {self.vars[vr].name} is an output and cannot be set")
-                raise TypeError(f"variable {self.vars[vr].name} is not of type Real")
-            if vr >= n_in and vr not in self._real_idx:
-                raise TypeError(f"variable {self.vars[vr].name} is not of type Real")
+            if vr < n_in or (vr in self._param_vr and vr in self._real_idx):
+                continue
+            if vr in self._real_idx:
+                raise ValueError(f"variable {self.vars[vr].name} is an output and cannot be set")
+            raise TypeError(f"variable {self.vars[vr].name} is not of type Real")
         self._check_all(vrs, values)
         for vr, v in zip(vrs, values, strict=True):
             if vr < n_in:

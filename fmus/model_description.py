@@ -21,13 +21,14 @@ import pythonfmu
 BaseUnit = Callable[[str], "dict[str, str] | None"]
 
 
-
-def _bounds(sig: Any) -> tuple[float | None, float | None]:
-    """The declared range, or that of the allowed values (a host then knows the extremes)."""
+def _bounds(sig: Any) -> tuple[float | None, bool, float | None]:
+    """(min, whether min itself is excluded, max): the declared range, or that of the allowed values
+    (a host then knows the extremes)."""
     if sig.choices is not None:
         values = [float(c) for c in sig.choices]
-        return min(values), max(values)
-    return sig.min, sig.max
+        return min(values), False, max(values)
+    return sig.min, sig.min_open, sig.max
+
 
 def complete_model_description(fmu: Path, signals: dict, base_unit: BaseUnit,
                                tool: str = "seafmu build") -> None:
@@ -64,18 +65,16 @@ def complete_model_description(fmu: Path, signals: dict, base_unit: BaseUnit,
         if sig is not None and real is not None:
             if sig.unit:
                 real.set("unit", sig.unit)
-            lo, hi = _bounds(sig)
+            lo, lo_open, hi = _bounds(sig)
             if lo is not None:
                 # FMI's min is inclusive: an open bound (> 0) is the next number up, which is accepted
-                real.set("min", repr(math.nextafter(lo, math.inf) if sig.min_open and sig.choices is None
-                                     else float(lo)))
+                real.set("min", repr(math.nextafter(lo, math.inf) if lo_open else float(lo)))
             if hi is not None:
                 real.set("max", repr(float(hi)))
         elif sig is not None and integer is not None:
-            lo, hi = _bounds(sig)
+            lo, lo_open, hi = _bounds(sig)
             if lo is not None:
-                integer.set("min", str(math.floor(lo) + 1 if sig.min_open and sig.choices is None
-                                       else math.ceil(lo)))
+                integer.set("min", str(math.floor(lo) + 1 if lo_open else math.ceil(lo)))
             if hi is not None:
                 integer.set("max", str(math.floor(hi)))
         if sv.get("causality") == "output":

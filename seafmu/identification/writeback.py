@@ -275,13 +275,20 @@ def updates_from_fit(fit: FitResult, vessel: VesselSpec, entries: str = "diagona
 def _clamp_negative_damping(updates: dict[str, float]) -> list[str]:
     """Negative diagonal damping (energy injected along that DOF) written as 0, as for 1-2-DOF
     trials; the notes say which. Off-diagonal couplings may be negative."""
-    notes = []
+    notes: list[str] = []
     for key, val in updates.items():
         m = re.match(r"^(linear_damping|quadratic_damping)\[(\d+)\]\[(\d+)\]$", key)
-        if m and m.group(2) == m.group(3) and val < 0:
-            notes.append(f"fitted {key} = {val:.4g} < 0 is unphysical: written as 0")
-            updates[key] = 0.0
+        if m and m.group(2) == m.group(3):
+            updates[key] = _nonnegative(key, val, notes)
     return notes
+
+
+def _nonnegative(name: str, val: float, notes: list[str]) -> float:
+    """A damping that would inject energy is written as 0, with a note saying so."""
+    if val < 0:
+        notes.append(f"fitted {name} = {val:.4g} < 0 is unphysical: written as 0")
+        return 0.0
+    return val
 
 
 # -- writing back into a vessel file --------------------------------------------------------------
@@ -319,11 +326,7 @@ def vessel_updates(trial: Trial, fit: FitResult, vessel_dof: int) -> tuple[dict[
         return {}, {}, ["thrust coefficients are per thruster: edit thrusters.units[*].k_forward by hand"]
     for key, field_name in (("d_L", "linear_damping"), ("d_Q", "quadratic_damping")):
         if key in p:
-            val = p[key]
-            if val < 0:
-                notes.append(f"fitted {key} = {val:.4g} < 0 is unphysical: written as 0")
-                val = 0.0
-            up[f"{field_name}[{i}][{i}]"] = val
+            up[f"{field_name}[{i}][{i}]"] = _nonnegative(key, p[key], notes)
             origin[f"{field_name}[{i}][{i}]"] = key
     if "m_a" in p:
         up[f"added_mass[{i}][{i}]"] = trial.constants.get("added_mass", 0.0) + p["m_a"]
