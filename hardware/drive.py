@@ -13,7 +13,9 @@ happens to the controller (crash, SIGKILL, hang, a frozen sender, a cut cable).
   refreshes the timeout. The first frame ever received is fresh.
 - **Command timeout.** When no fresh frame arrived for ``timeout`` seconds, the thruster is set to
   zero and disabled (``tripped``), with one log line saying why (silence, a frozen counter, jumps)
-  and the command-timeout fault bit in its status.
+  and the command-timeout fault bit in its status. Only an *enabled* thruster times out: one the
+  controller disabled (enable = 0) is already at zero, and silence after it is a clean stop (seafmu's
+  link sends enable 0 as it closes), not a fault to log and latch.
 - **Re-enable.** ``latching`` (the seafmu DBC): a tripped drive stays stopped until a fresh frame
   with enable = 0 arrives (the controller acknowledges the stop), then runs on the next fresh
   enable = 1 — an explicit enable edge, so a controller that wakes from a hang cannot restart the
@@ -113,10 +115,10 @@ class CommandSupervisor:
         return "fresh"
 
     def update(self, now: float) -> np.ndarray:
-        """Trip every thruster without a fresh frame for ``timeout``; True where one tripped now."""
+        """Trip every enabled thruster without a fresh frame for ``timeout``; True where one tripped now."""
         if not self.started:
             return np.zeros(len(self.n_max), dtype=bool)
-        new = ~self.tripped & ((now - self.last_valid) > self.timeout)
+        new = ~self.tripped & self.enable & ((now - self.last_valid) > self.timeout)
         for i in np.flatnonzero(new):
             self.tripped[i] = True
             self.speed[i] = 0.0

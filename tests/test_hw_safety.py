@@ -118,6 +118,21 @@ def test_supervisor_frozen_counter_is_stale_and_jumps_resynchronise() -> None:
     assert sup2.output()[0][0] == 3.0
 
 
+def test_supervisor_a_disabled_thruster_never_times_out_and_runs_on_the_next_enable() -> None:
+    """Silence after enable 0 is a clean stop (the link's close), not a fault: no trip, no log line,
+    no fault bit; the next fresh enable 1 runs (0 -> 1 is the edge a latched drive asks for)."""
+    lines: list[str] = []
+    sup = CommandSupervisor(N_MAX[:2], timeout=0.3, log=lines.append)
+    sup.receive(_cmd(0, 0), 0.0)
+    sup.receive(_cmd(1, 0), 0.0)
+    sup.receive(_cmd(0, 1, speed=0.0, enable=False), 0.05)  # thruster 1 stopped cleanly
+    assert sup.update(5.0).tolist() == [False, True]  # thruster 2, enabled and silent, trips
+    assert sup.faults().tolist() == [0, FAULT_COMMAND_TIMEOUT]
+    assert len(lines) == 1 and lines[0].startswith("thruster 2: COMMAND TIMEOUT")
+    assert sup.receive(_cmd(0, 2, speed=4.0), 5.1) == "fresh"
+    assert sup.output()[0].tolist() == [4.0, 0.0]
+
+
 def test_supervisor_needs_an_enable_edge_after_a_timeout_unless_not_latching() -> None:
     sup = CommandSupervisor(N_MAX[:1], timeout=0.3, latching=True)
     sup.receive(_cmd(0, 0), 0.0)
