@@ -98,52 +98,69 @@ def _columns(fig: Any) -> int:
     return max(int(np.ceil(fig.get_figwidth() * DPI)), 1)
 
 
+# (variable suffix or prefix, legend label, line style) of a state's sources. A hardware link has no
+# true state (a real vessel does not report it): its figures show what was measured instead, and
+# what the observer estimated; a simulation's show the true state, not the noisy measurements.
+SOURCES = (("", "true", "-"), ("meas_", "measured", "."), ("_hat", "estimated", "--"))
+
+
+def _source(s: Series, name: str, tag: str) -> str | None:
+    """The recorded signal of ``name`` from one source (``tag``), or None; measured only where
+    there is no true one."""
+    if tag == "meas_" and s.find(name):
+        return None
+    return s.find(tag + name if tag.endswith("_") else name + tag)
+
+
 def trajectory(s: Series, path: Path) -> bool:
-    n, e = s.find("north"), s.find("east")
-    if n is None or e is None:
+    pairs = [(label, style, n, e) for tag, label, style in SOURCES
+             if (n := _source(s, "north", tag)) and (e := _source(s, "east", tag))]
+    if not pairs:
         return False
     fig = _figure(6, 6)
     ax = fig.subplots()
-    ax.plot(s.signals[e], s.signals[n], label="true", lw=1.5)
-    nh, eh = s.find("north_hat"), s.find("east_hat")
-    if nh and eh:
-        ax.plot(s.signals[eh], s.signals[nh], "--", label="estimated", lw=1)
+    for i, (label, style, n, e) in enumerate(pairs):
+        kw: dict[str, Any] = {"ms": 2} if style == "." else {"lw": 1.5 if i == 0 else 1}
+        ax.plot(s.signals[e], s.signals[n], style, label=label, **kw)
     nr, er = s.find("north_ref"), s.find("east_ref")
     if nr and er:
         ax.plot(s.signals[er], s.signals[nr], "k+", ms=10, label="setpoints")
-    ax.plot(s.signals[e][0], s.signals[n][0], "go", label="start")
+    _, _, n0, e0 = pairs[0]
+    ax.plot(s.signals[e0][0], s.signals[n0][0], "go", label="start")
     ax.set_xlabel("east [m]")
     ax.set_ylabel("north [m]")
     ax.set_aspect("equal", adjustable="datalim")
     ax.grid(True, alpha=0.3)
     ax.legend()
-    ax.set_title(f"{s.name}: trajectory (NED)")
+    ax.set_title(f"{s.name}: trajectory (NED{'' if pairs[0][0] == 'true' else ', ' + pairs[0][0]})")
     _save(fig, path)
     return True
 
 
 def states(s: Series, path: Path) -> bool:
-    eta = [n for n in ETA if s.find(n)]
+    eta = [n for n in ETA if any(_source(s, n, tag) for tag, _, _ in SOURCES)]
     if not eta:
         return False
     fig = _figure(9, 1.9 * len(eta) + 0.6)
     axes = fig.subplots(len(eta), 1, sharex=True, squeeze=False)
     cols = _columns(fig)
+    legend: dict[str, Any] = {}  # every source that appears in any panel (a link measures few states)
     for ax, n in zip(axes[:, 0], eta, strict=True):
         scale, unit = (180 / np.pi, "deg") if n in ANGLES else (1.0, "m")
-        for suffix, style, label in (("", "-", "true"), ("_hat", "--", "estimate"), ("_d", ":", "desired"),
-                                     ("_ref", "-", "reference")):
-            key = s.find(n + suffix)
+        for tag, style, label, color in (("", "-", "true", "C0"), ("meas_", ".", "measured", "C7"),
+                                         ("_hat", "--", "estimate", "C1"), ("_d", ":", "desired", "C2"),
+                                         ("_ref", "-", "reference", "k")):
+            key = _source(s, n, tag)
             if key is None:
                 continue
-            kw: dict[str, Any] = {"lw": 0.8} if suffix == "_ref" else {"lw": 1.2}
-            if suffix == "_ref":
-                kw["color"] = "k"
-                kw["alpha"] = 0.5
-            ax.plot(*m4(s.time, s.signals[key] * scale, cols), style, label=label, **kw)
+            kw: dict[str, Any] = {"lw": 0.8, "alpha": 0.5} if tag == "_ref" else {"lw": 1.2}
+            if tag == "meas_":  # held samples: dots, not a line through the holds
+                kw = {"ms": 1.5, "alpha": 0.6}
+            (line,) = ax.plot(*m4(s.time, s.signals[key] * scale, cols), style, color=color, **kw)
+            legend.setdefault(label, line)
         ax.set_ylabel(f"{n} [{unit}]")
         ax.grid(True, alpha=0.3)
-    axes[0, 0].legend(loc="best", fontsize=8, ncol=4)
+    axes[0, 0].legend(list(legend.values()), list(legend), loc="best", fontsize=8, ncol=5, markerscale=4)
     axes[-1, 0].set_xlabel("time [s]")
     fig.suptitle(f"{s.name}: states vs references")
     _save(fig, path)
@@ -158,22 +175,34 @@ def _numbered(s: Series, prefix: str) -> list[str]:
 
 
 def thrusters(s: Series, path: Path) -> bool:
+    """One row per thruster (seven lines on one axis are unreadable): its shaft speed with the
+    allocator's command, and its thrust where the plant reports it (a hardware link does not)."""
     speeds, thrusts = _numbered(s, "n_"), _numbered(s, "thrust_")
     if not speeds and not thrusts:
         return False
-    fig = _figure(9, 6)
-    axes = fig.subplots(2, 1, sharex=True)
-    cols = _columns(fig)
-    for ax, keys in ((axes[0], speeds), (axes[1], thrusts)):
-        for k in keys:
-            ax.plot(*m4(s.time, s.signals[k], cols), lw=1, label=k.split(".", 1)[1])
-    axes[0].set_ylabel("shaft speed [rev/s]")
-    axes[1].set_ylabel("thrust [N]")
-    axes[1].set_xlabel("time [s]")
-    for ax in axes:
-        ax.grid(True, alpha=0.3)
-        if ax.get_legend_handles_labels()[0]:  # a hardware link reports no thrust: no empty legend
-            ax.legend(fontsize=7, ncol=4, loc="best")
+    commands = {k.rsplit("_", 1)[1]: k for k in _numbered(s, "n_cmd_")}
+    number = sorted({int(k.rsplit("_", 1)[1]) for k in speeds + thrusts})
+    kinds = [keys for keys in (speeds, thrusts) if keys]
+    fig = _figure(9, 0.3 + 1.15 * len(number) + 0.5)
+    axes = fig.subplots(len(number), len(kinds), sharex=True, squeeze=False)
+    cols = _columns(fig) // len(kinds)
+    for j, keys in enumerate(kinds):
+        by_number = {int(k.rsplit("_", 1)[1]): k for k in keys}
+        for i, num in enumerate(number):
+            ax = axes[i, j]
+            cmd = commands.get(str(num)) if keys is speeds else None
+            if cmd is not None:  # under the measured speed: where they differ, the command shows
+                ax.plot(*m4(s.time, s.signals[cmd], cols), lw=0.8, color="C1", alpha=0.8)
+            k = by_number.get(num)
+            if k is not None:
+                ax.plot(*m4(s.time, s.signals[k], cols), lw=1, color="C0")
+            ax.grid(True, alpha=0.3)
+            ax.tick_params(labelsize=7)
+            if j == 0:
+                ax.set_ylabel(f"thruster {num}", fontsize=8)
+        axes[0, j].set_title("shaft speed [rev/s]" + (" (blue: shaft, orange: command)" if commands else "")
+                            if keys is speeds else "thrust [N]", fontsize=9)
+        axes[-1, j].set_xlabel("time [s]")
     fig.suptitle(f"{s.name}: thruster use")
     _save(fig, path)
     return True
