@@ -13,6 +13,7 @@ import dataclasses
 import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from seafmu.components.vessel_spec import VesselSpec, load_vessel
@@ -55,6 +56,26 @@ def test_clean_maneuver_log_gives_no_effect(tmp_path: Path, seed: int) -> None:
     # every maneuver-level extension is tried (thruster_loss where the log has per-thruster thrust)
     assert {"current", "constant_force"} <= {c.effect for c in d.candidates} <= set(MANEUVER_EFFECTS)
     assert all(not c.accepted for c in d.candidates)
+    # The restarted simulation's residual is coloured by the noisy start states even for the true
+    # model (Ljung-Box against white noise rejects); against what the noise alone leaves, it is
+    # white, and the evidence does not claim structure that is not there.
+    w = d.baseline.whiteness
+    assert w["ljung_box_p"] < 0.01 and w["white"] and w["noise_only_p"] >= 0.01, w
+    assert "structure remains" not in d.evidence, d.evidence
+
+
+def test_a_model_structure_error_in_a_maneuver_log_is_flagged_as_structure(tmp_path: Path) -> None:
+    """The AMV's sway-yaw quadratic coupling (D_Q[1,2] = D_Q[2,1]) is 0 in the water, 60 in its
+    vessel file: no catalogue effect is that, and the baseline (diagonal damping fitted) cannot
+    absorb it. The diagnosis must not call the log clean."""
+    amv = load_vessel("amv_osf")
+    DQ = np.array(amv.D_Q, dtype=float)
+    assert DQ[1, 2] == DQ[2, 1] == 60.0
+    DQ[1, 2] = DQ[2, 1] = 0.0
+    d = diagnose(_trial(tmp_path, dataclasses.replace(amv, D_Q=DQ), "amv_osf", 0, 200.0, 0.1))
+    w = d.baseline.whiteness
+    assert not w["white"] and w["noise_only_p"] < 0.01, w
+    assert d.effect == "none" and "structure remains that no catalogue effect explains" in d.evidence
 
 
 def test_constant_force_in_a_6dof_maneuver_log_is_named(tmp_path: Path) -> None:
@@ -70,3 +91,4 @@ def test_constant_force_in_a_6dof_maneuver_log_is_named(tmp_path: Path) -> None:
     assert p["F_0[Z]"] == pytest.approx(-100.0, rel=0.15)  # upwards (z down)
     assert not ci["F_0[Z]"][0] <= 0.0 <= ci["F_0[Z]"][1]
     assert d.to_json()["gain"]["delta_aic"] < -10
+    assert "_halfwidt" not in d.evidence and "Z = -" in d.evidence and " ± " in d.evidence, d.evidence

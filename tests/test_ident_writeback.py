@@ -186,3 +186,5 @@ def test_maneuver_write_back_never_writes_energy_injecting_damping(tmp_path: Pat
     warn = ["the fitted model diverges when simulated against the trial (unstable)"]
     msg, path = write_vessel_file(trial, _maneuver_fit(5.0, warn), tmp_path / "w.yaml", "ls")  # type: ignore[arg-type]
     assert path is None and msg.startswith("write-back refused") and not (tmp_path / "w.yaml").exists()
+    with pytest.raises(ValueError, match="diverges when simulated"):  # the API refuses it too
+        updates_from_fit(_maneuver_fit(5.0, warn), load_vessel("minerva2"))

@@ -174,6 +174,33 @@ def nonidentifiable_pairs(
     return out
 
 
+# the warning of a fit whose model diverges when simulated (maneuver fits); write-back refuses such a fit
+DIVERGED = "the fitted model diverges when simulated against the trial"
+
+
+def lags(n: int, max_lag: int = 20) -> int:
+    """The lags a whiteness test of n samples looks at: 1..min(max_lag, n/4)."""
+    return int(min(max_lag, max(n // 4, 1)))
+
+
+def ljung_box_q(r: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """(Ljung–Box Q, autocorrelations at lags 1..k) of each column of r (n, c), mean removed;
+    Q is nan for a column that is constant."""
+    r = np.asarray(r, dtype=float)
+    r = r - r.mean(axis=0)
+    n = r.shape[0]
+    den = np.einsum("ij,ij->j", r, r)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        acf = np.stack([np.einsum("ij,ij->j", r[:-lag], r[lag:]) for lag in range(1, k + 1)]) / den
+    q = n * (n + 2) * np.sum(acf**2 / (n - np.arange(1, k + 1))[:, None], axis=0)
+    return q, acf
+
+
+def p_text(p: float, replicates: int) -> str:
+    """'= 0.21', or '<= 0.005' at the smallest p-value a test of that many replicates resolves."""
+    return f"<= {p:.2g}" if p <= 1.0 / (1 + replicates) else f"= {p:.2g}"
+
+
 def whiteness_test(residual: np.ndarray, max_lag: int = 20) -> dict[str, Any]:
     """Autocorrelation test of residuals over lags 1..k (k = min(max_lag, n/4)).
 
@@ -184,18 +211,14 @@ def whiteness_test(residual: np.ndarray, max_lag: int = 20) -> dict[str, Any]:
     r = np.asarray(residual, dtype=float).ravel()
     r = r[np.isfinite(r)]
     n = r.size
-    k = int(min(max_lag, max(n // 4, 1)))
+    k = lags(n, max_lag)
     if n < 8:
         return {"lags": 0, "fraction_outside": float("nan"), "ljung_box_p": float("nan"), "white": False}
-    r = r - r.mean()
-    den = float(np.dot(r, r))
-    if den == 0.0:
+    if float(np.ptp(r)) == 0.0:
         return {"lags": k, "fraction_outside": 0.0, "ljung_box_p": 1.0, "white": True}
-    acf = np.array([np.dot(r[:-lag], r[lag:]) / den for lag in range(1, k + 1)])
-    bound = 1.96 / np.sqrt(n)
-    frac = float(np.mean(np.abs(acf) > bound))
-    q = n * (n + 2) * float(np.sum(acf**2 / (n - np.arange(1, k + 1))))
-    p_lb = float(stats.chi2.sf(q, k))
+    q, acf = ljung_box_q(r[:, None], k)
+    frac = float(np.mean(np.abs(acf[:, 0]) > 1.96 / np.sqrt(n)))
+    p_lb = float(stats.chi2.sf(float(q[0]), k))
     return {"lags": k, "fraction_outside": frac, "ljung_box_p": p_lb, "white": bool(p_lb >= 0.01)}
 
 

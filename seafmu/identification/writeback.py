@@ -23,7 +23,7 @@ import numpy as np
 import yaml
 
 from seafmu.components.vessel_spec import VesselFileError, VesselSpec, load_vessel, vessel_path
-from seafmu.identification.fitting import FitResult
+from seafmu.identification.fitting import DIVERGED, FitResult
 from seafmu.identification.trial import DOF_INDEX, Trial
 
 # Model-matrix names (fits, the brief) -> vessel-file fields.
@@ -246,6 +246,10 @@ def updates_from_fit(fit: FitResult, vessel: VesselSpec, entries: str = "diagona
     """
     if entries not in ("diagonal", "all"):
         raise ValueError(f"entries must be 'diagonal' or 'all', got {entries!r}")
+    if any(DIVERGED in w for w in fit.warnings):  # a vessel file from it would make every later run diverge
+        raise ValueError("the fitted model diverges when simulated against the trial: no vessel-file values "
+                         "from it (a log that excites every DOF, or method='output_error': "
+                         "docs/maneuver_identification.md)")
     updates: dict[str, float] = {}
     prov: dict[str, str] = {"method": fit.method}
     if trial or fit.extras.get("source"):
@@ -351,12 +355,11 @@ def write_vessel_file(trial: Trial, fit: FitResult, out_path: Path, method: str,
 
     spec = load_vessel(name)
     if trial.kind == "maneuver":  # the maneuver module knows its own parameter names
-        diverged = [w for w in fit.warnings if "diverges when simulated" in w]
-        if diverged:  # a vessel file from it would make every later run diverge too
-            return ("write-back refused: the fitted model diverges when simulated against the trial; no "
-                    "vessel file written (a log that excites every DOF, or --method output_error: "
-                    "docs/maneuver_identification.md)"), None
-        updates, mprov = updates_from_fit(fit, spec, trial=trial.name)
+        try:
+            updates, mprov = updates_from_fit(fit, spec, trial=trial.name)
+        except ValueError as exc:
+            return (f"write-back refused: {str(exc).replace('method=', '--method ')}; no vessel file "
+                    "written"), None
         if not updates:
             return "write-back skipped: the maneuver fit has no vessel-file parameters", None
         notes = _clamp_negative_damping(updates)

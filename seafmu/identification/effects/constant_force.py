@@ -71,8 +71,12 @@ class ConstantForce(CatalogueEffect):
         return {"F0": P}
 
     def maneuver_evidence(self, params: dict[str, float]) -> str:
-        forces = ", ".join(f"{k[4:-1]} = {fmt(v)} {'N' if k[4:-1] in 'XYZ' else 'N·m'}"
-                           for k, v in params.items() if k.startswith("F_0["))
+        def one(key: str, value: float) -> str:
+            axis, hw = key[4:-1], params.get(f"{key}_halfwidth")  # the words carry each CI half-width
+            unit = "N" if axis in "XYZ" else "N·m"
+            return f"{axis} = {fmt(value)}{'' if hw is None else f' ± {fmt(hw)}'} {unit}"
+
+        forces = ", ".join(one(k, v) for k, v in params.items() if k.startswith("F_0[") and k.endswith("]"))
         return (f"a steady external force acts on the hull ({forces}): wind, tether pull, trim or buoyancy "
                 "error")
 

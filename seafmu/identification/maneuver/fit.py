@@ -34,7 +34,7 @@ from seafmu.identification.maneuver.statistics import (
     _is_diag,
     _rel_halfwidth,
     _sanity,
-    _whiteness,
+    whiteness,
 )
 from seafmu.identification.maneuver.terms import _sym, effect_names, plant_matrices
 from seafmu.identification.trial import (
@@ -187,7 +187,7 @@ def fit_prepared(problem: ManeuverProblem, method: str = "ls", *, oe_added_mass:
         fit_setup, problem.val_setup, M, D_L, D_Q, eff, extras, warnings)
     rss = float(np.sum(res_ok**2))
     aic, bic = fitting.aic_bic(rss, res_ok.size, len(names))
-    whiteness = _whiteness(res_ok, nu_names)
+    white = whiteness(fit_setup, M, D_L, D_Q, eff, prep, res_ok, nu_names)
 
     warnings += _sanity(M, D_L, D_Q, problem.plant["M_RB"], ci, nu_rms, nu_names, fitted)
     nonid = fitting.nonidentifiable_pairs(names, corr)
@@ -203,7 +203,7 @@ def fit_prepared(problem: ManeuverProblem, method: str = "ls", *, oe_added_mass:
         nrmse_validation=nrmse_validation,
         aic=aic,
         bic=bic,
-        whiteness=whiteness,
+        whiteness=white,
         warnings=warnings,
         n_samples=int(rows.size),
         method=method_label,
@@ -322,7 +322,7 @@ def _simulation_scores(fit_setup: _SimSetup, val_setup: _SimSetup | None, M: np.
     if val_setup is not None:
         extras["predictions"].append(_trace(val_setup, M, D_L, D_Q, "validation", eff))
     if not np.all(np.isfinite(res_fit)):
-        warnings.append("the fitted model diverges when simulated against the trial (unstable)")
+        warnings.append(f"{fitting.DIVERGED} (unstable)")
         res_ok = np.nan_to_num(res_fit, nan=1e3)
     else:
         res_ok = res_fit

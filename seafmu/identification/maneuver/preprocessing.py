@@ -8,7 +8,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import savgol_filter
+from scipy.signal import savgol_coeffs, savgol_filter
 
 from seafmu.identification.maneuver.io import ManeuverData
 from seafmu.identification.trial import TrialError
@@ -30,6 +30,9 @@ class _Prepared:
     # per-thruster thrust on the hull as the vessel file says (n, m), filtered like tau; None when
     # the log gives tau only (tau = B thrust when present)
     thrust: np.ndarray | None = None
+    # std of white noise in nu_raw that stays in nu (the smoother's gain on it): the noise of the
+    # segments' start states, which the whiteness test allows for (statistics.whiteness)
+    noise_gain: float = 1.0
 
 
 def _uniform(data: ManeuverData, warnings: list[str]) -> ManeuverData:
@@ -101,4 +104,5 @@ def _prepare(data: ManeuverData, derivative: str, smoothing: float | None, polyo
         f"nu_dot by Savitzky-Golay (order {polyorder}, window {win} samples = {win * dt:.3g} s); "
         "nu, roll/pitch and tau smoothed by the same filter",
         None if thrust is None else sg(thrust),
+        float(np.sqrt(np.sum(savgol_coeffs(win, polyorder) ** 2))),
     )
