@@ -174,8 +174,12 @@ def _document(text: bytes) -> Any:
 def load_vessel(name_or_path: str | Path) -> VesselSpec:
     path = vessel_path(name_or_path)
     if not path.is_file():
+        from .names import did_you_mean
+
+        bundled = bundled_vessels()
         raise VesselFileError(
-            f"vessel '{name_or_path}': no such vessel file {path} (bundled: {', '.join(bundled_vessels())})"
+            f"vessel '{name_or_path}': no such vessel file {path}{did_you_mean(str(name_or_path), bundled)} "
+            f"(bundled: {', '.join(bundled)})"
         )
     try:
         doc = _document(path.read_bytes())

@@ -304,6 +304,10 @@ class BlockSlave(Fmi2Slave):
 
     def _check_param(self, name: str, value: Any) -> None:
         """The block's own check (components.block.Signal.check): one place for every bound."""
+        if name == VESSEL_FILE and self._block is not None and not self._initialising:
+            # the FMU's own parameter, not the block's: the vessel is read as initialisation ends
+            raise ValueError(f"{self.BLOCK.kind}: parameter '{VESSEL_FILE}' is fixed after initialisation "
+                             "(the vessel file is read when initialisation ends)")
         sig = self._signals.get(name)
         if sig is not None:
             sig.check(value, self.BLOCK.kind)

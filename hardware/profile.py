@@ -166,10 +166,11 @@ def load_profile(name_or_path: str | Path | HardwareProfile) -> HardwareProfile:
         return name_or_path
     path = profile_path(name_or_path)
     if not path.is_file():
-        raise ProfileError(
-            f"hardware profile '{name_or_path}': no such file {path} "
-            f"(bundled: {', '.join(bundled_profiles())})"
-        )
+        from ..components.names import did_you_mean
+
+        bundled = bundled_profiles()
+        raise ProfileError(f"hardware profile '{name_or_path}': no such file {path}"
+                           f"{did_you_mean(str(name_or_path), bundled)} (bundled: {', '.join(bundled)})")
     try:
         doc = yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:

@@ -48,8 +48,10 @@ def _cmd_build(args: argparse.Namespace) -> int:
     vessels = tuple(args.vessel) if args.vessel else VESSELS
     unknown = [v for v in vessels if v not in VESSELS]  # a name, never a path: it names the build files
     if unknown:
-        print(f"seafmu: error: --vessel {one_line(unknown[0])}: not a vessel with FMUs "
-              f"(vessels: {', '.join(VESSELS)})", file=sys.stderr)
+        from seafmu.scenario import did_you_mean
+
+        print(f"seafmu: error: --vessel {one_line(unknown[0])}: not a vessel with FMUs"
+              f"{did_you_mean(unknown[0], VESSELS)} (vessels: {', '.join(VESSELS)})", file=sys.stderr)
         return 2
     if args.link:
         from seafmu.hardware.profile import load_profile

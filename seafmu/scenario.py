@@ -26,6 +26,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, model_validator
 from pydantic_core import PydanticCustomError
 
+from seafmu.components.names import did_you_mean
 from seafmu.units import UnitError, to_si
 from seafmu.yamlfile import read_mapping, validation_message
 
@@ -211,8 +212,9 @@ def scenario_path(name_or_path: str | Path | None) -> Path:
     candidate = SCENARIO_DIR / f"{name_or_path}.yaml"
     if p.suffix in ("", ) and candidate.is_file():
         return candidate
-    known = ", ".join(sorted(q.stem for q in SCENARIO_DIR.glob("*.yaml")))
-    raise ScenarioError(f"scenario '{name_or_path}': no such file or shipped scenario (shipped: {known})")
+    names = sorted(q.stem for q in SCENARIO_DIR.glob("*.yaml"))
+    raise ScenarioError(f"scenario '{name_or_path}': no such file or shipped scenario"
+                        f"{did_you_mean(str(name_or_path), names)} (shipped: {', '.join(names)})")
 
 
 @dataclass(frozen=True)
@@ -283,8 +285,8 @@ def _apply_overrides(doc: dict[str, Any], overrides: list[Override], path: Path)
     events = doc.setdefault("events", [])
     for o in overrides:
         if o.instance not in fmus:
-            raise ScenarioError(f"{path}: {o.label}: unknown FMU '{o.instance}' "
-                                f"(FMUs: {', '.join(map(str, fmus))})")
+            raise ScenarioError(f"{path}: {o.label}: unknown FMU '{o.instance}'"
+                                f"{did_you_mean(o.instance, fmus)} (FMUs: {', '.join(map(str, fmus))})")
         if o.time is not None:
             if not isinstance(events, list):
                 return labels
@@ -606,7 +608,7 @@ def resolve(model: ScenarioModel, path: Path, labels: dict[str, str] | None = No
             field = labels.get(field, field)
             info = variables.get(pname)
             if info is None:
-                raise _fail(path, field, f"no such variable in FMU '{name}'")
+                raise _fail(path, field, f"no such variable in FMU '{name}'{did_you_mean(pname, variables)}")
             if info.causality not in ("parameter", "input"):
                 raise _fail(path, field, f"is an {info.causality}; it cannot be set")
             params[pname] = _convert(value, info, path, field)
@@ -632,10 +634,12 @@ def resolve(model: ScenarioModel, path: Path, labels: dict[str, str] | None = No
     def lookup(ref: str, where: str, causality: tuple[str, ...]) -> tuple[str, str, VarInfo]:
         inst, var = _split(ref, path, where)
         if inst not in by_name:
-            raise _fail(path, where, f"unknown FMU '{inst}' in '{ref}' (FMUs: {', '.join(by_name)})")
+            raise _fail(path, where, f"unknown FMU '{inst}' in '{ref}'{did_you_mean(inst, by_name)} "
+                        f"(FMUs: {', '.join(by_name)})")
         info = by_name[inst].variables.get(var)
         if info is None:
-            raise _fail(path, where, f"FMU '{inst}' has no variable '{var}'")
+            raise _fail(path, where, f"FMU '{inst}' has no variable '{var}'"
+                        f"{did_you_mean(var, by_name[inst].variables)}")
         if info.causality not in causality:
             raise _fail(path, where, f"'{ref}' is an {info.causality}, expected {' or '.join(causality)}")
         return inst, var, info

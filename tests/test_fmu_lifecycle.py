@@ -451,6 +451,9 @@ def test_bad_parameters_are_fatal_naming_them_and_the_fmu_stays_usable(built_fmu
     with pytest.raises(FMICallException):
         fmu.setReal([vr["noise_scale"]], [0.5])  # fixed after initialisation
     assert "noise_scale" in log.errors()[-1]
+    with pytest.raises(FMICallException):  # the FMU's own parameter: fixed too, and said so
+        fmu.setString([vr["vessel_file"]], ["minerva2_published_damping"])
+    assert "'vessel_file' is fixed after initialisation" in log.errors()[-1], log.errors()[-1]
     assert _step(fmu, 0.05, 0.05) == FMI_OK and np.isfinite(_outputs(fmu, path)).all()
     _close(fmu)
 

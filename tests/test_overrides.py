@@ -44,8 +44,10 @@ def short(tmp_path: Path) -> Path:
 @pytest.mark.parametrize("given, expected", [
     ("plant.current_speed=0.2 deg", "--set plant.current_speed=0.2 deg: unit 'deg'"),
     ("plant.current_speed=-1m/s", "--set plant.current_speed=-1m/s: -1 m/s is below the minimum 0"),
-    ("plant.bogus=1", "--set plant.bogus=1: no such variable in FMU 'plant'"),
-    ("pilot.x=1", "--set pilot.x=1: unknown FMU 'pilot'"),
+    ("plant.bogus=1", "--set plant.bogus=1: no such variable in FMU 'plant'\n"),  # nothing close: no hint
+    ("pilot.x=1", "--set pilot.x=1: unknown FMU 'pilot' (FMUs: plant, observer"),
+    ("plant.curent_speed=0.2m/s", "no such variable in FMU 'plant'; did you mean 'current_speed'?"),
+    ("plantt.current_speed=0.2m/s", "unknown FMU 'plantt'; did you mean 'plant'?"),
     ("plant.north=1", "--set plant.north=1: is an output; it cannot be set"),
     ("plant.seed=1.5", "--set plant.seed=1.5: expected a whole number"),
     ("controller.kp_north=fast", "--set controller.kp_north=fast: expected a number"),

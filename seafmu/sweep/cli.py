@@ -46,14 +46,15 @@ def study_path(arg: str) -> Path:
     p = Path(arg)
     if p.is_file():
         return p
-    from seafmu.scenario import REPO
+    from seafmu.scenario import REPO, did_you_mean
     from seafmu.sweep.study import StudyError
 
     shipped = REPO / "studies" / arg / "study.yaml"
     if not p.suffix and shipped.is_file():
         return shipped
-    known = ", ".join(sorted(q.parent.name for q in (REPO / "studies").glob("*/study.yaml")))
-    raise StudyError(f"study '{arg}': no such file or shipped study (shipped: {known})")
+    names = sorted(q.parent.name for q in (REPO / "studies").glob("*/study.yaml"))
+    raise StudyError(f"study '{arg}': no such file or shipped study{did_you_mean(arg, names)} "
+                     f"(shipped: {', '.join(names)})")
 
 
 def _case_table(study: Study, done: dict[int, dict[str, Any]]) -> list[str]:

@@ -44,8 +44,11 @@ def run(args: argparse.Namespace) -> int:
 
     vessel = args.vessel
     if vessel not in bundled_vessels():
-        known = ", ".join(bundled_vessels())
-        print(f"seafmu: error: vessel '{vessel}': not a bundled vessel (bundled: {known})", file=sys.stderr)
+        from seafmu.scenario import did_you_mean
+
+        known = bundled_vessels()
+        print(f"seafmu: error: vessel '{vessel}': not a bundled vessel{did_you_mean(vessel, known)} "
+              f"(bundled: {', '.join(known)})", file=sys.stderr)
         return 2
     if args.hardware is not None:
         try:
