@@ -169,8 +169,9 @@ def fit_prepared(problem: ManeuverProblem, method: str = "ls", *, oe_added_mass:
     d = vessel.dof
     warnings = list(problem.warnings)
     if prep.dt > 0.05 and problem.derivative != "measured" and method == "ls":
-        warnings.append(f"coarse sampling ({prep.dt:g} s): differentiation bias grows as dt^2; "
-                        "prefer method='output_error' for final numbers")
+        warnings.append(f"coarse sampling ({prep.dt:g} s): differentiation bias grows as dt^2 and the "
+                        "95 % CIs count the noise, not this bias (they may miss the true value); prefer "
+                        "method='output_error' for final numbers")
     rows = problem.rows
     nu_names = NU_NAMES[d]
     nu_rms = np.sqrt(np.mean(prep.nu_raw[rows] ** 2, axis=0))
