@@ -432,13 +432,12 @@ class FmuUnit:
         if not getattr(self, "_instantiated", False):
             return
         self._instantiated = False
-        try:
+        with contextlib.suppress(Exception):  # an FMU that failed may refuse to terminate: freed anyway
             self.fmu.terminate()
-            # Free the instance but keep the shared library loaded: unloading pythonfmu's
-            # library and loading it again in the same process makes the next instantiate fail.
+        # Free the instance but keep the shared library loaded: unloading pythonfmu's library and
+        # loading it again in the same process makes the next instantiate fail.
+        with contextlib.suppress(Exception):
             self.fmu.fmi2FreeInstance(self.fmu.component)
-        except Exception:  # an FMU that failed may refuse to terminate; nothing to save then
-            pass
 
 
 # -- the unit kinds (seafmu/unit.py: UNIT_KINDS) -------------------------------------------------

@@ -154,9 +154,11 @@ def test_bad_parameter_gives_readable_fmi_error(built_fmus: dict) -> None:
     log: list[str] = []
     # another FMU instantiated later must not steal the plant's log messages
     other = FmuUnit(_instance("minerva2", "controller"), built_fmus[("minerva2", "controller")], [], log)
+    unit = FmuUnit(_instance("minerva2", "plant", {"noise_scale": -1.0}), built_fmus[("minerva2", "plant")],
+                   [], log)
     with pytest.raises(SimulationError) as err:
-        inst = _instance("minerva2", "plant", {"noise_scale": -1.0})
-        FmuUnit(inst, built_fmus[("minerva2", "plant")], [], log).initialize(np.zeros(0))
+        unit.initialize(np.zeros(0))
+    unit.terminate()  # freed: no instance of this test outlives it (test_fmu_state counts them)
     assert "exitInitializationMode" in str(err.value) and "noise_scale" in str(err.value)
     assert str(err.value).startswith("FMU 'plant' failed") and "\n" not in str(err.value)
     assert any(m.startswith("plant: ") and "noise_scale" in m for m in log)
@@ -165,15 +167,16 @@ def test_bad_parameter_gives_readable_fmi_error(built_fmus: dict) -> None:
 
 def test_bad_vessel_file_parameter(built_fmus: dict, tmp_path: Path) -> None:
     log: list[str] = []
-    inst = _instance("minerva2", "plant", {"vessel_file": str(tmp_path / "missing.yaml")})
-    with pytest.raises(SimulationError, match=r"missing\.yaml"):
-        FmuUnit(inst, built_fmus[("minerva2", "plant")], [], log).initialize(np.zeros(0))
-    # a vessel file with another interface (2 screws) is refused, not silently mis-wired
     from seafmu.components.vessel_spec import vessel_path
 
-    inst = _instance("minerva2", "plant", {"vessel_file": str(vessel_path("amv_osf"))})
-    with pytest.raises(SimulationError, match="another interface"):
-        FmuUnit(inst, built_fmus[("minerva2", "plant")], [], log).initialize(np.zeros(0))
+    # a missing file, and a vessel file with another interface (2 screws): refused, not mis-wired
+    refused = ((tmp_path / "missing.yaml", r"missing\.yaml"), (vessel_path("amv_osf"), "another interface"))
+    for given, why in refused:
+        unit = FmuUnit(_instance("minerva2", "plant", {"vessel_file": str(given)}),
+                       built_fmus[("minerva2", "plant")], [], log)
+        with pytest.raises(SimulationError, match=why):
+            unit.initialize(np.zeros(0))
+        unit.terminate()
 
 
 @pytest.mark.parametrize("scenario", ["minerva2_dp", "amv_osf_autopilot"])
