@@ -115,6 +115,13 @@ JOY_AXES = (("surge", "X", "north"), ("sway", "Y", "east"), ("heave", "Z", "down
 JOY_DEFAULT_FRACTION = 0.5  # full stick = half the pure-DOF capability: headroom for roll/pitch hold
 
 
+
+def gain_unit(gain: str, dof: str) -> str:
+    """The unit of a PID gain on one DOF: force (N, or N.m on an angle) per error (m or rad), per error
+    rate (kd) or per integrated error (ki)."""
+    force, error = ("N.m", "rad") if dof in ("roll", "pitch", "yaw") else ("N", "m")
+    return {"kp": f"{force}/{error}", "kd": f"{force}.s/{error}", "ki": f"{force}/({error}.s)"}[gain]
+
 class ModeTables(NamedTuple):
     """Per mode, for one set of eta names: free DOFs, DOFs from the setpoint inputs."""
 
@@ -181,7 +188,8 @@ class DPPidController(ControllerBlock):
         params: list[Signal] = []
         for g, vals, what in (("kp", kp, "proportional"), ("kd", kd, "derivative"), ("ki", ki, "integral")):
             for n, v in zip(eta, vals, strict=True):
-                params.append(Signal(f"{g}_{n}", "", f"{what} gain {n} (default: pole placement, "
+                params.append(Signal(f"{g}_{n}", gain_unit(g, n),
+                                     f"{what} gain {n} (default: pole placement, "
                                      f"omega_n = {omega[eta.index(n)]:.3g} rad/s, zeta = {zeta:g})",
                                      min=0.0, start=float(round(v, 6)), tunable=True))
         tuning = _tuning(vessel)

@@ -374,3 +374,22 @@ def test_mode_and_guidance_parameters_are_checked(minerva: VesselSpec) -> None:
     ctl.step(0.0, 0.05, np.zeros(22))
     assert ctl.guidance is not None
     np.testing.assert_allclose(ctl.guidance.points, [[0, 0], [2, 0], [2, 2]])
+
+
+@pytest.mark.parametrize("vessel", ["minerva2", "amv_osf", "supply"])
+def test_every_pid_gain_has_the_unit_that_makes_its_term_a_force(vessel: str) -> None:
+    """kp * error, kd * error rate and ki * integrated error are each a force (N) or a moment (N.m):
+    the modelDescription tells an FMI tool what a gain is, not a bare number."""
+    from seafmu.components.dp_pid import DPPidController
+    from seafmu.components.vessel_spec import load_vessel
+    from seafmu.unitdefs import parse_unit
+
+    params = {s.name: s for s in DPPidController.interface(load_vessel(vessel)).parameters}
+    gains = [n for n in params if n.split("_", 1)[0] in ("kp", "kd", "ki")]
+    assert len(gains) in (9, 18)  # three gains per controlled DOF, 3 or 6 DOF
+    for name in gains:
+        g, dof = name.split("_", 1)
+        angle = dof in ("roll", "pitch", "yaw")
+        error = {"kp": "", "kd": "/s", "ki": ".s"}[g]
+        term = parse_unit(f"({params[name].unit}).{'rad' if angle else 'm'}{error}")
+        assert term.exponents == parse_unit("N.m" if angle else "N").exponents, (name, params[name].unit)
