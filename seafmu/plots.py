@@ -208,7 +208,13 @@ def thrusters(s: Series, path: Path) -> bool:
     return True
 
 
+EXACT = 1e-6  # N or N.m: an allocation error below this is rounding (the scenarios' checks use it too)
+FLOOR = 1e-16  # what a log axis shows for an error of exactly 0
+
+
 def allocation(s: Series, path: Path) -> bool:
+    """‖Bu − τ‖ on a log axis: a linear one would magnify rounding (1e-13) into a curve that looks
+    like a fault; the line at 1e-6 separates rounding from a real shortfall (saturation, a loss)."""
     keys = sorted(k for k in s.signals if k.endswith(".alloc_error"))
     if not keys:
         return False
@@ -216,11 +222,19 @@ def allocation(s: Series, path: Path) -> bool:
     ax = fig.subplots()
     cols = _columns(fig)
     for k in keys:
-        ax.plot(*m4(s.time, s.signals[k], cols), lw=1.2, label=k.split(".", 1)[0])
+        t, y = m4(s.time, s.signals[k], cols)
+        ax.plot(t, np.maximum(y, FLOOR), lw=1.2, label=k.split(".", 1)[0])
+    ax.set_yscale("log")
+    ax.axhline(EXACT, color="C3", ls="--", lw=1, label=f"{EXACT:g}: below is rounding")
+    worst = max(float(np.nanmax(s.signals[k], initial=0.0)) for k in keys)
+    ax.set_ylim(top=100 * max(worst, EXACT))  # room above the line and the legend
+    if worst < EXACT:
+        ax.text(0.01, 0.03, f"exact to rounding throughout (max {worst:.2g})", transform=ax.transAxes,
+                va="bottom", fontsize=8)
     ax.set_xlabel("time [s]")
-    ax.set_ylabel("allocation error ‖Bu − τ‖")
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=8)
+    ax.set_ylabel("allocation error ‖Bu − τ‖ [N, N·m]")
+    ax.grid(True, which="major", alpha=0.3)
+    ax.legend(fontsize=8, loc="upper right")
     ax.set_title(f"{s.name}: allocation error")
     _save(fig, path)
     return True

@@ -75,3 +75,19 @@ def test_a_simulation_shows_the_true_state_not_the_measurements(figures: dict[st
     assert len(th) == 14  # seven rows: shaft speed with its command, thrust
     assert "thrust [N]" in th[1].get_title() and len(th[1].lines) == 1
     np.testing.assert_array_equal(th[-1].lines[0].get_ydata(), s.signals["plant.thrust_7"])
+
+
+@pytest.mark.parametrize("peak", [3e-13, 50.0])
+def test_allocation_error_is_on_a_log_axis_and_rounding_is_called_rounding(figures: dict[str, Any],
+                                                                          peak: float) -> None:
+    """On a linear axis 1e-13 of rounding looked like a fault; a real shortfall (saturation) must
+    not be called rounding."""
+    t = np.linspace(0, 60, 601)
+    err = np.abs(np.sin(t)) * peak
+    err[0] = 0.0  # exactly 0: drawn at the floor, not lost to the log axis
+    plots.draw_all(plots.Series("x", t, {"allocator.alloc_error": err}), Path("unused"))
+    (ax,) = figures["allocation.png"].axes
+    assert ax.get_yscale() == "log" and ax.lines[0].get_ydata().min() == plots.FLOOR
+    texts = [x.get_text() for x in ax.texts]
+    assert any("exact to rounding" in x for x in texts) == (peak < plots.EXACT), texts
+    assert ax.get_ylim()[1] >= 100 * max(peak, plots.EXACT) * 0.999

@@ -128,6 +128,7 @@ def test_failing_case_recorded_without_stopping(small: tuple[Path, Done]) -> Non
     table = [ln for ln in (out / "report.md").read_text().splitlines()
              if ln.startswith(("| north error | <=", "| EKF north rms | <="))]
     assert len(table) == 2 and all(ln.split("|")[3].strip() == "4" for ln in table), table
+    assert all(ln.split("|")[2].strip().endswith(" m") for ln in table), table  # the bound with its unit
 
 
 def test_worst_case_reproduces_exactly(small: tuple[Path, Done]) -> None:

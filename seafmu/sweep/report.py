@@ -70,6 +70,24 @@ def check_bounds(study: Study) -> dict[str, tuple[float | None, float | None]]:
     return {check_name(c): (c.min, c.max) for c in checks}
 
 
+def check_units(study: Study) -> dict[str, str]:
+    """The unit of each check's value, by check name: its signal's (rad for an angle check). A
+    label's decoration: a scenario that does not load gives none, never a failed report."""
+    try:
+        sc = next(iter(study.scenarios.values()), None)
+        if sc is None:
+            from seafmu.scenario import load_scenario
+
+            sc = load_scenario(study.scenario_file)
+        units = {}
+        for c in sc.checks:
+            inst, var = c.signal.split(".", 1)
+            units[check_name(c)] = "rad" if c.angle else sc.instance(inst).variables[var].unit
+        return units
+    except Exception:
+        return {}
+
+
 def margin(value: float, lo: float | None, hi: float | None) -> float:
     """How far inside its bounds a value is, relative to the bound (negative: outside; -inf: none)."""
     if value is None or not math.isfinite(value):
@@ -103,6 +121,18 @@ def _margins(fig: Any, left: float, right: float, bottom: float, top: float, wsp
     w, h = fig.get_size_inches()
     fig.subplots_adjust(left=min(left / w, 0.6), right=1 - right / w, bottom=min(bottom / h, 0.4),
                         top=max(1 - top / h, 0.5), wspace=wspace, hspace=hspace)
+
+
+def _wrapped(text: str, width: int, lines: int = 2) -> str:
+    """A check's name on up to ``lines`` lines of ``width`` characters (its unit is often at the end:
+    cut, the label lost it), with '…' only where even those are not enough."""
+    import textwrap
+
+    parts = textwrap.wrap(text, width) or [""]
+    if len(parts) > lines:
+        parts = parts[:lines]
+        parts[-1] = parts[-1][: width - 1] + "…"
+    return "\n".join(parts)
 
 
 def _save(fig: Any, path: Path) -> None:
@@ -159,7 +189,8 @@ def _plot_pass_rates(rows: list[tuple[str, int, int]], path: Path) -> None:
     _save(fig, path)
 
 
-def _plot_distributions(frame: Any, cols: list[str], bounds: Bounds, path: Path) -> None:
+def _plot_distributions(frame: Any, cols: list[str], bounds: Bounds, path: Path,
+                        units: dict[str, str] | None = None) -> None:
     n = len(cols)
     ncol = min(3, n)
     nrow = math.ceil(n / ncol)
@@ -180,13 +211,16 @@ def _plot_distributions(frame: Any, cols: list[str], bounds: Bounds, path: Path)
         for b in (lo, hi):
             if b is not None:
                 ax.axvline(b, color="C3", ls="--", lw=1.2)
-        ax.set_title(name[:55], fontsize=7)
+        ax.set_title(_wrapped(name, 60), fontsize=7)
+        unit = (units or {}).get(name)
+        if unit:
+            ax.set_xlabel(f"[{unit}]", fontsize=7, labelpad=1)
         ax.tick_params(labelsize=7)
     for ax in list(axes.flat)[n:]:
         ax.axis("off")
     fig.suptitle("distribution of each check value (red: its bound) and metric: fraction of cases per bin "
                  "(bars) and cumulative (line)", fontsize=9)
-    _margins(fig, 0.45, 0.2, 0.35, 0.6, wspace=0.25, hspace=0.45)
+    _margins(fig, 0.45, 0.2, 0.35, 0.6, wspace=0.25, hspace=0.6)  # two-line titles
     _save(fig, path)
 
 
@@ -228,7 +262,7 @@ def _plot_inputs(frame: Any, inputs: list[str], cols: list[str], bounds: Bounds,
             if i == nrow - 1:
                 ax.set_xlabel(inp, fontsize=7)
             if j == 0:
-                ax.set_ylabel(name[:28], fontsize=6)
+                ax.set_ylabel(_wrapped(name, 30, 3), fontsize=6)
     fig.suptitle("each varied input against each check (green pass, red fail) and metric", fontsize=9)
     _margins(fig, 0.75, 0.15, 0.5, 0.5, wspace=0.3, hspace=0.3)
     _save(fig, path)
@@ -262,7 +296,7 @@ def _plot_maps(frame: Any, a: str, b: str, cols: list[str], path: Path) -> None:
             if np.isfinite(v):
                 ax.text(c, r - 0.3, f"{v:.3g}", ha="center", va="center", color="w", fontsize=5)
         fig.colorbar(im, ax=ax)
-        ax.set_title(name[:55], fontsize=7)
+        ax.set_title(_wrapped(name, 60), fontsize=7)
     for ax in list(axes.flat)[n:]:
         ax.axis("off")
     fig.suptitle(f"maps over {a} and {b} (x: a failed check)", fontsize=9)
@@ -364,6 +398,7 @@ def write_study_report(study: Study, outcome: Any, out: Path) -> tuple[Path, lis
     check_cols = [CHECK + n for n in bounds if CHECK + n in frame.columns]
     metric_cols = [c for c in frame.columns if c.startswith(METRIC)]
     rate_rows, table = [("all checks", k, n_done)], []
+    units = check_units(study)
     ran = frame[status != "error"]  # a case that could not run to its end evaluated no check
     for col in check_cols:
         name = col[len(CHECK):]
@@ -372,7 +407,7 @@ def write_study_report(study: Study, outcome: Any, out: Path) -> tuple[Path, lis
         a, b = wilson(kk, nn)
         v = ran[col].astype(float)
         rate_rows.append((name, kk, nn))
-        table.append([name, _bound_text(*bounds[name]), str(nn), str(kk),
+        table.append([name, f"{_bound_text(*bounds[name])} {units.get(name, '')}".strip(), str(nn), str(kk),
                       f"{100 * kk / nn:.1f} %" if nn else "—",
                       f"{100 * a:.1f}–{100 * b:.1f} %" if nn else "—",
                       f"{v.min():.4g}", f"{v.median():.4g}", f"{v.max():.4g}"])
@@ -387,7 +422,7 @@ def write_study_report(study: Study, outcome: Any, out: Path) -> tuple[Path, lis
     figures.append(("Pass rates", "pass_rates.png"))
     value_cols = check_cols + metric_cols
     if value_cols:
-        _plot_distributions(frame, value_cols, bounds, out / "distributions.png")
+        _plot_distributions(frame, value_cols, bounds, out / "distributions.png", units)
         figures.append(("Distribution of every check value against its bound", "distributions.png"))
     inputs = [n for n in study.inputs if n in frame.columns and frame[n].nunique() > 1]
     if inputs and value_cols and len(inputs) * len(value_cols) <= MAX_SCATTER_PANELS:
