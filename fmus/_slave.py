@@ -206,6 +206,7 @@ class BlockSlave(Fmi2Slave):
         self._real_idx: dict[int, int] = {}  # value reference -> index in self._real
         self._block: Block | None = None
         self._initialising = False
+        self._terminated = False  # fmi2Terminate called: no step or initialisation after it
 
         for i, s in enumerate(iface.inputs):
             self._real[i] = float(s.start)
@@ -436,16 +437,26 @@ class BlockSlave(Fmi2Slave):
 
     @fmi_call
     def enter_initialization_mode(self) -> None:
+        # FMI 2.0's state machine, which pythonfmu does not enforce: a wrong call is refused by name
+        # rather than silently restarting (or stepping) an instance in the middle of its life
+        if self._terminated:
+            raise RuntimeError("enterInitializationMode after fmi2Terminate: free this instance, start a "
+                               "new one")
+        if self._block is not None:
+            raise RuntimeError("enterInitializationMode on an instance that is initialised already (FMI "
+                               "allows it once; a new instance starts over)")
         self._initialising = True
 
     @fmi_call
     def exit_initialization_mode(self) -> None:
+        if not self._initialising:
+            raise RuntimeError("exitInitializationMode without enterInitializationMode before it")
         self._initialising = False
         self._initialise()
 
     @fmi_call
     def terminate(self) -> None:
-        pass
+        self._terminated = True  # doStep and a new initialisation are refused from now on
 
     def _make_block(self, params: dict[str, Any]) -> Block:
         """A new block from the parameters, every value checked first (ValueError naming it)."""
@@ -510,6 +521,8 @@ class BlockSlave(Fmi2Slave):
 
     def _step(self, t: float, h: float) -> str:
         block = self._block
+        if self._terminated:
+            return "called after fmi2Terminate"
         if block is None:
             return "called before exitInitializationMode succeeded"
         if not 0.0 < h <= MAX_STEP:  # also NaN

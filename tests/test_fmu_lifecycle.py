@@ -416,6 +416,30 @@ def test_non_finite_outputs_are_a_discarded_step_naming_them(built_fmus: dict, p
     _close(fmu)
 
 
+def test_calls_out_of_fmi_order_are_refused_naming_the_order(built_fmus: dict) -> None:
+    """FMI 2.0's state machine, which pythonfmu leaves to the FMU: no step before initialisation or
+    after fmi2Terminate, one initialisation per instance. Each refusal says which call and why."""
+    path = built_fmus[("minerva2", "plant")]
+    fmu, _, log = _open(path, init=False)
+    assert _step(fmu, 0.0, 0.05) == FMI_DISCARD  # in initialisation mode
+    assert "before exitInitializationMode" in log.errors()[-1]
+    fmu.exitInitializationMode()
+    with pytest.raises(FMICallException):
+        fmu.exitInitializationMode()
+    assert "exitInitializationMode without enterInitializationMode" in log.errors()[-1]
+    with pytest.raises(FMICallException):
+        fmu.enterInitializationMode()
+    assert "initialised already" in log.errors()[-1]
+    assert _step(fmu, 0.0, 0.05) == FMI_OK  # the refusals left the instance as it was
+    fmu.terminate()
+    assert _step(fmu, 0.05, 0.05) == FMI_DISCARD
+    assert "called after fmi2Terminate" in log.errors()[-1]
+    with pytest.raises(FMICallException):
+        fmu.enterInitializationMode()
+    assert "after fmi2Terminate" in log.errors()[-1]
+    fmu.fmi2FreeInstance(fmu.component)
+
+
 @pytest.mark.parametrize("h", [0.0, -0.05, math.nan, math.inf, 1e6, 10.000001])
 def test_bad_step_size_is_refused_at_once(built_fmus: dict, h: float) -> None:
     """h = 1e6 used to hang the plant (2e7 RK4 sub-steps); now: 0 < h <= 10 s or fmi2Discard."""
