@@ -1,24 +1,32 @@
 """Sweep throughput: the same 40-case study on a local Dask cluster with 1 and 2 workers, and as 40
 sequential ``seafmu run`` processes.
 
+The study: 40 seeds over ``minerva2_dp`` (``--scenario`` names another scenario), or with
+``--study NAME`` the first 40 cases of a shipped study (``minerva2_dp_monte_carlo``: Latin
+hypercube over current speed, direction and wave height, paired with seeds). The base scenario is
+copied beside the study (``--duration`` shortens it); the sequential runs are each case's own
+``seafmu run ... --set ... --seed`` line from cases.parquet.
+
 The speed-up of 2 workers over 1 (goal >= 1.8x on a 2-core machine) is the ratio of the wall times
 of the whole ``seafmu sweep`` command (a fresh process: start-up, validation of every case, cluster,
 cases, cases.parquet, report, cluster closed), the same study file and the same 40 cases for both,
 each into a fresh folder. Each sweep's time is split into its cases (from the first case's start
 to the last case's end, from the rows' timestamps) and the fixed cost around them; the speed-up over
-the cases alone is printed beside the end-to-end one. The per-case overhead of the sweep over a
-bare run (goal <= 10 %): a bare run = the master loop of the same case (``loop_time_s``), measured
-in the same worker at the same time as the case's ``wall_time_s``, so other load on the host
-cancels out. Cases per hour per core are printed to size a cluster.
+the cases alone is printed beside the end-to-end one, and the case length from which the end-to-end
+speed-up reaches 1.8x with the fixed cost measured (the fixed cost does not shrink with 2 workers:
+one warmed-up worker start before the first case, the report after the last). The per-case
+overhead of the sweep over a bare run (goal <= 10 %): a bare run = the master loop of the same case
+(``loop_time_s``), measured in the same worker at the same time as the case's ``wall_time_s``, so
+other load on the host cancels out. Cases per hour per core are printed to size a cluster.
 
-Before timing, one ``seafmu run`` of the scenario warms the FMU build, the compiled kernels' cache,
-Python's bytecode cache and the file cache, so neither worker count pays for them (a user's machine
-keeps them; ``PYTHONDONTWRITEBYTECODE``, set on some build hosts, is cleared for the commands
-timed); ``--repeat N`` alternates the order of the 1- and 2-worker sweeps N times and reports the
-median of each.
+Before timing, one ``seafmu run`` of the base scenario warms the FMU build, the compiled kernels'
+cache, Python's bytecode cache and the file cache, so neither worker count pays for them (a user's
+machine keeps them; ``PYTHONDONTWRITEBYTECODE``, set on some build hosts, is cleared for the
+commands timed); ``--repeat N`` alternates the order of the 1- and 2-worker sweeps N times and
+reports the median of each.
 
-    python benchmarks/bench_sweep.py [--cases 40] [--scenario minerva2_dp] [--duration 300] [--repeat 1]
-                                     [--no-sequential]
+    python benchmarks/bench_sweep.py [--cases 40] [--scenario minerva2_dp | --study NAME]
+                                     [--duration S] [--repeat 1] [--no-sequential]
 """
 
 from __future__ import annotations
@@ -38,7 +46,8 @@ from pathlib import Path
 import pandas as pd
 import yaml
 
-from seafmu.scenario import scenario_path
+from seafmu.scenario import REPO, scenario_path
+from seafmu.sweep.study import load_study
 
 
 def _cpu_children() -> float:
@@ -78,11 +87,47 @@ def _sweep(seafmu: list[str], work: Path, n: int, k: int, cases: int) -> Sweep:
     return wall, span, frame, cpu
 
 
+def _study(args: argparse.Namespace, work: Path) -> tuple[str, dict]:
+    """Write ``work/base.yaml`` (the base scenario, shortened to ``--duration``) and ``work/study.yaml``
+    (the shipped study's first ``--cases`` cases, or ``--cases`` seeds over ``--scenario``); returns
+    (what is run, the base scenario)."""
+    if not args.study:
+        study: dict = {"name": "bench", "seeds": args.cases}
+        base, what = scenario_path(args.scenario), f"{args.scenario}, {args.cases} seeds"
+    else:
+        src = REPO / "studies" / args.study / "study.yaml"
+        if not src.is_file():
+            sys.exit(f"--study {args.study}: no such shipped study (studies/<name>/study.yaml)")
+        study = yaml.safe_load(src.read_text())
+        ref = Path(study["scenario"])
+        base = (src.parent / ref) if ref.suffix else scenario_path(study["scenario"])
+        if "sampling" in study:
+            study["sampling"]["samples"] = args.cases
+        if isinstance(study.get("seeds"), int):
+            study["seeds"] = args.cases
+        what = f"study {args.study}, its first {args.cases} cases"
+    doc = yaml.safe_load(base.read_text())
+    if args.duration:
+        doc["duration"] = args.duration
+        doc["events"] = [e for e in doc.get("events", []) if e["time"] < args.duration]
+        doc["checks"] = [c for c in doc.get("checks", []) if c.get("after", 0) < args.duration
+                         and c.get("before", 0) <= args.duration]
+    (work / "base.yaml").write_text(yaml.safe_dump(doc, sort_keys=False))
+    study["scenario"] = "base.yaml"
+    (work / "study.yaml").write_text(yaml.safe_dump(study, sort_keys=False))
+    n = len(load_study(work / "study.yaml", validate=False).cases)
+    if n != args.cases:
+        sys.exit(f"{what}: makes {n} cases, not --cases {args.cases} (a grid study has its own count)")
+    return what, doc
+
+
 def main() -> None:
     # Long because it is the benchmark's procedure and its report, read top to bottom.
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cases", type=int, default=40)
-    ap.add_argument("--scenario", default="minerva2_dp")
+    what = ap.add_mutually_exclusive_group()
+    what.add_argument("--scenario", default="minerva2_dp", help="--cases seeds over this scenario (default)")
+    what.add_argument("--study", help="instead: a shipped study, its first --cases cases")
     ap.add_argument("--duration", type=float, default=None, help="shorten the scenario (s)")
     ap.add_argument("--repeat", type=int, default=1,
                     help="1- and 2-worker sweeps, alternated, this many times")
@@ -92,14 +137,8 @@ def main() -> None:
     subprocess.run([*seafmu, "build"], check=True, capture_output=True)
     with tempfile.TemporaryDirectory(prefix="bench_sweep_") as tmp:
         work = Path(tmp)
-        doc = yaml.safe_load(scenario_path(args.scenario).read_text())
-        if args.duration:
-            doc["duration"] = args.duration
-            doc["events"] = [e for e in doc.get("events", []) if e["time"] < args.duration]
-            doc["checks"] = [c for c in doc.get("checks", []) if c.get("after", 0) < args.duration
-                             and c.get("before", 0) <= args.duration]
-        (work / "base.yaml").write_text(yaml.safe_dump(doc, sort_keys=False))
-        (work / "study.yaml").write_text(f"name: bench\nscenario: base.yaml\nseeds: {args.cases}\n")
+        what, doc = _study(args, work)
+        print(f"{what} ({doc['duration']:g} s simulated each)", flush=True)
         _timed([*seafmu, "run", "base.yaml", "-q", "-o", "warmup"], work)  # caches warm for both counts
 
         runs: dict[int, list[Sweep]] = {1: [], 2: []}
@@ -124,8 +163,8 @@ def main() -> None:
         seq_wall, bare_s = None, None
         if not args.no_sequential:
             seq_wall, bare = 0.0, []
-            for seed in range(1, args.cases + 1):
-                argv = [*seafmu, "run", "base.yaml", "--seed", str(seed), "-q", "-o", "run"]
+            for command in runs[1][0][2].sort_values("case")["command"]:  # each case's own reproducing line
+                argv = [*seafmu, *shlex.split(command)[1:], "-q", "-o", "run"]
                 seq_wall += _timed(argv, work)[0]
                 bare.append(json.loads((work / "run" / "summary.json").read_text())["wall_time_s"])
             bare_s = float(pd.Series(bare).median())
@@ -146,6 +185,10 @@ def main() -> None:
         print(f"  breakdown: cases {s1:.1f} s on 1 worker, {s2:.1f} s on 2 (speed-up over the cases alone "
               f"{s1 / s2:.2f}x); fixed cost (start-up, validation, cluster, cases.parquet, report, close) "
               f"{w1 - s1:.1f} s on 1 worker, {w2 - s2:.1f} s on 2")
+        if s1 / s2 > 1.8:  # (F1 + N c) / (F2 + N c / r) = 1.8, solved for the case length c
+            c18 = (1.8 * (w2 - s2) - (w1 - s1)) / (1 - 1.8 / (s1 / s2)) / args.cases
+            print(f"  with these fixed costs and {args.cases} cases, 2 workers reach 1.8x end to end for "
+                  f"cases of {max(c18, 0):.2f} s and longer (these: {s1 / args.cases:.2f} s on 1 worker)")
         print(f"overhead per case in its worker over the bare run of the same case (master.run: FMUs "
               f"instantiated, loop, freed; the sweep adds checks, metrics, the row; measured together, so "
               f"load cancels): {100 * overhead_run:+5.1f} % (goal <= 10 %)")
@@ -156,7 +199,7 @@ def main() -> None:
                   f"{100 * ((w1 / args.cases) / bare_s - 1):+5.1f} %")
             print(f"sweep vs sequential seafmu run processes: {seq_wall / w1:5.2f}x faster on 1 worker, "
                   f"{seq_wall / w2:5.2f}x on 2")
-        print(f"cases per hour per core ({args.scenario}, {doc['duration']:g} s simulated): "
+        print(f"cases per hour per core ({what}, {doc['duration']:g} s simulated): "
               f"{3600 * args.cases / (w2 * cores):.0f} (2 workers), {3600 * args.cases / w1:.0f} (1 worker)")
         cpu = both["cpu_time_s"].median()
         print(f"cases per hour per core from the CPU time a case takes in its worker ({cpu:.2f} s, "

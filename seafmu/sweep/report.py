@@ -104,14 +104,16 @@ def _bound_text(lo: float | None, hi: float | None) -> str:
     return " and ".join(p for p in parts if p)
 
 
-def _figure(width: float, height: float, nrow: int = 1, ncol: int = 1) -> tuple[Any, np.ndarray]:
-    """A figure on the Agg canvas, outside pyplot (no global figure list), and its axes grid."""
+def _figure(width: float, height: float, nrow: int = 1, ncol: int = 1,
+            **share: Any) -> tuple[Any, np.ndarray]:
+    """A figure on the Agg canvas, outside pyplot (no global figure list), and its axes grid
+    (``sharex``/``sharey`` as ``Figure.subplots`` takes them)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(width, height))
     FigureCanvasAgg(fig)
-    return fig, fig.subplots(nrow, ncol, squeeze=False)
+    return fig, fig.subplots(nrow, ncol, squeeze=False, **share)
 
 
 def _margins(fig: Any, left: float, right: float, bottom: float, top: float, wspace: float = 0.2,
@@ -235,7 +237,9 @@ def _positions(col: Any) -> tuple[np.ndarray, list[str] | None]:
 
 def _plot_inputs(frame: Any, inputs: list[str], cols: list[str], bounds: Bounds, path: Path) -> None:
     nrow, ncol = len(cols), len(inputs)
-    fig, axes = _figure(3.4 * ncol + 0.6, 2.3 * nrow + 0.6, nrow, ncol)
+    # A column is one input, a row one check: shared axes, tick labels on the outer panels only
+    # (also a third of the figure's drawing time: most of it is tick labels)
+    fig, axes = _figure(3.4 * ncol + 0.6, 2.3 * nrow + 0.6, nrow, ncol, sharex="col", sharey="row")
     rng = np.random.default_rng(0)
     for j, inp in enumerate(inputs):
         x, labels = _positions(frame[inp])
@@ -263,8 +267,9 @@ def _plot_inputs(frame: Any, inputs: list[str], cols: list[str], bounds: Bounds,
                 ax.set_xlabel(inp, fontsize=7)
             if j == 0:
                 ax.set_ylabel(_wrapped(name, 30, 3), fontsize=6)
+            ax.label_outer()
     fig.suptitle("each varied input against each check (green pass, red fail) and metric", fontsize=9)
-    _margins(fig, 0.75, 0.15, 0.5, 0.5, wspace=0.3, hspace=0.3)
+    _margins(fig, 0.75, 0.15, 0.5, 0.5, wspace=0.08, hspace=0.2)
     _save(fig, path)
 
 
