@@ -45,9 +45,6 @@ def test_current_in_a_maneuver_log_is_named(tmp_path: Path, seed: int) -> None:
     assert p["v_c_east"] == pytest.approx(0.1 * math.sin(0.8), rel=0.1)
     assert "current of 0.09" in d.evidence or "current of 0.1" in d.evidence
     assert "towards 46 deg" in d.evidence
-    # the current explains the mismatch: what is left is the sensor noise, and nothing is hedged
-    assert not d.structure_remains and not doc["cause"]["structure_remains"], d.extended.whiteness
-    assert "unconfirmed" not in d.evidence
     assert d.baseline.method.startswith("maneuver output error")  # the diagnosis baseline
 
 
@@ -79,23 +76,6 @@ def test_a_model_structure_error_in_a_maneuver_log_is_flagged_as_structure(tmp_p
     w = d.baseline.whiteness
     assert not w["white"] and w["noise_only_p"] < 0.01, w
     assert d.effect == "none" and "structure remains that no catalogue effect explains" in d.evidence
-    assert d.structure_remains and d.to_json()["cause"]["structure_remains"]
-
-
-def test_an_effect_standing_in_for_a_model_error_is_not_confirmed(tmp_path: Path) -> None:
-    """The same wrong sway-yaw coupling on another seed: a constant force improves the held-out fit
-    enough to pass the acceptance rule (17 %), but with it the residual is still more than the
-    sensor noise. The diagnosis must say so, not present the force as the explanation."""
-    amv = load_vessel("amv_osf")
-    DQ = np.array(amv.D_Q, dtype=float)
-    DQ[1, 2] = DQ[2, 1] = 0.0
-    d = diagnose(_trial(tmp_path, dataclasses.replace(amv, D_Q=DQ), "amv_osf", 1, 200.0, 0.1))
-    assert d.structure_remains and d.to_json()["cause"]["structure_remains"]
-    if d.cause is not None:
-        assert not d.extended.whiteness["white"], d.extended.whiteness
-        assert "does not explain the whole mismatch" in d.evidence and "unconfirmed" in d.evidence, d.evidence
-    else:
-        assert "structure remains that no catalogue effect explains" in d.evidence, d.evidence
 
 
 def test_constant_force_in_a_6dof_maneuver_log_is_named(tmp_path: Path) -> None:

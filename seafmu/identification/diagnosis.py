@@ -185,12 +185,6 @@ class Diagnosis:
         return [{"effect": self.cause.effects[i], "params": {k: float(f.params[k]) for k in groups[i]}}
                 for i in _member_order(self.cause, self.candidates)]
 
-    @property
-    def structure_remains(self) -> bool:
-        """The extended model's residual (the baseline's if no cause) holds more structure than the
-        sensor noise leaves: tested where a noise-only null exists (maneuver fits)."""
-        return _unexplained(self.extended.whiteness) is not None
-
     def ranking(self) -> list[Candidate]:
         ok = [c for c in self.candidates if c.fit is not None]
         return sorted(ok, key=lambda c: (c.fit.nrmse_validation if math.isfinite(c.fit.nrmse_validation)
@@ -211,7 +205,7 @@ class Diagnosis:
                       "baseline_model": self.trial.baseline, "provenance": self.trial.provenance},
             "baseline": summary(b),
             "cause": {"effect": self.effect, "effects": self.effects, "members": self.members(),
-                      "evidence": self.evidence, "structure_remains": self.structure_remains,
+                      "evidence": self.evidence,
                       "tested": self.tested, "alternatives": alts,
                       "discriminating_experiment": next((a["discriminating_experiment"] for a in alts[1:]
                                                          if a["discriminating_experiment"]), None),
@@ -1044,18 +1038,6 @@ def alternatives(trial: Trial, cause: Candidate | None, cands: list[Candidate]) 
     return out
 
 
-def _unexplained(w: dict[str, Any]) -> str | None:
-    """Why a maneuver fit's residual is more than sensor noise (against its noise-only replicates,
-    ``maneuver.statistics.whiteness``), or None: it is not, or no such null was computed."""
-    if "noise_only_p" not in w or w.get("white") is not False:
-        return None
-    dofs = [n for n, d in w.get("per_dof", {}).items() if d.get("noise_only_p", 1.0) < 0.01]
-    where = f" in {', '.join(dofs)}" if dofs else ""
-    return (f"holds more structure than the sensor noise leaves{where} (Ljung-Box p "
-            f"{p_text(w['noise_only_p'], w['noise_replicates'])} over {w['noise_replicates']} noise-only "
-            "replicates)")
-
-
 def explain(trial: Trial, base: FitResult, cands: list[Candidate], cause: Candidate | None,
             skipped: dict[str, str], alts: list[Alternative] | None = None) -> str:
     if cause is None:
@@ -1078,7 +1060,12 @@ def explain(trial: Trial, base: FitResult, cands: list[Candidate], cause: Candid
         w = base.whiteness
         if w.get("white") is False:
             # The model is still wrong somewhere: say so rather than imply the data are explained.
-            why = _unexplained(w) or f"is not white (Ljung-Box p = {w['ljung_box_p']:.2g})"
+            if "noise_only_p" in w:  # a maneuver: tested against what the sensor noise alone leaves
+                why = (f"holds more structure than the sensor noise leaves (Ljung-Box p "
+                       f"{p_text(w['noise_only_p'], w['noise_replicates'])} "
+                       f"over {w['noise_replicates']} noise-only replicates)")
+            else:
+                why = f"is not white (Ljung-Box p = {w['ljung_box_p']:.2g})"
             text += f"; but the baseline residual {why}: structure remains that no catalogue effect explains"
         return text + "."
     assert cause.fit is not None
@@ -1108,15 +1095,6 @@ def explain(trial: Trial, base: FitResult, cands: list[Candidate], cause: Candid
     if len(others) > len(likely):
         text += (f" {len(others) - len(likely)} other explanation(s) pass the rule with an Akaike weight "
                  "below 0.01.")
-    why = _unexplained(cause.fit.whiteness)
-    if why:
-        # A catalogue effect that improves the fit is not yet the cause: with a true one the residual
-        # is what the noise leaves (noise-only p 0.17-0.4 on AMV logs with a current), with a stand-in
-        # for a model error it is not (p 0.005, the sway-yaw damping coupling wrong, which a constant
-        # force improves by 17 % held-out: tests/test_ident_maneuver_diagnosis.py).
-        text += (f" But this does not explain the whole mismatch: with it the residual still {why}, so "
-                 f"'{'+'.join(cause.effects)}' may stand in for a model error that no catalogue effect is "
-                 "(a damping or coupling term of the vessel's model): treat it as unconfirmed.")
     return text
 
 
