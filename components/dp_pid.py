@@ -115,12 +115,12 @@ JOY_AXES = (("surge", "X", "north"), ("sway", "Y", "east"), ("heave", "Z", "down
 JOY_DEFAULT_FRACTION = 0.5  # full stick = half the pure-DOF capability: headroom for roll/pitch hold
 
 
-
 def gain_unit(gain: str, dof: str) -> str:
     """The unit of a PID gain on one DOF: force (N, or N.m on an angle) per error (m or rad), per error
     rate (kd) or per integrated error (ki)."""
     force, error = ("N.m", "rad") if dof in ("roll", "pitch", "yaw") else ("N", "m")
     return {"kp": f"{force}/{error}", "kd": f"{force}.s/{error}", "ki": f"{force}/({error}.s)"}[gain]
+
 
 class ModeTables(NamedTuple):
     """Per mode, for one set of eta names: free DOFs, DOFs from the setpoint inputs."""

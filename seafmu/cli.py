@@ -48,7 +48,7 @@ def _cmd_build(args: argparse.Namespace) -> int:
     vessels = tuple(args.vessel) if args.vessel else VESSELS
     unknown = [v for v in vessels if v not in VESSELS]  # a name, never a path: it names the build files
     if unknown:
-        from seafmu.scenario import did_you_mean
+        from seafmu.components.names import did_you_mean
 
         print(f"seafmu: error: --vessel {one_line(unknown[0])}: not a vessel with FMUs"
               f"{did_you_mean(unknown[0], VESSELS)} (vessels: {', '.join(VESSELS)})", file=sys.stderr)

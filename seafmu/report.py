@@ -51,12 +51,12 @@ def allocation_table(result: RunResult) -> list[str]:
     insts = sorted({k.split(".", 1)[0] for k in result.signals if k.endswith(".alloc_error")})
     if not insts:
         return []
-    rows = ["| allocator | first time with error > 1e-6 [s] | max ‖Bu − τ‖ | "
+    rows = [f"| allocator | first time with error > {plots.EXACT:g} [s] | max ‖Bu − τ‖ | "
             "Σ negative front thrust (indicator) | mean Σu² |", "|---|---|---|---|---|"]
     t = result.time
     for i in insts:
         err = result.signals[f"{i}.alloc_error"]
-        over = np.flatnonzero(err > 1e-6)
+        over = np.flatnonzero(err > plots.EXACT)
         onset = f"{t[over[0]]:g}" if over.size else "never"
         ind = result.signals.get(f"{i}.front_negative_thrust")
         en = result.signals.get(f"{i}.thrust_energy")

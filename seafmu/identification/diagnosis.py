@@ -38,7 +38,7 @@ from seafmu.identification import effects as effect_objects
 from seafmu.identification.ambiguity import akaike_weights, discriminating_experiment, noise_level
 from seafmu.identification.catalogue import CATALOGUE, effect_params, null_value
 from seafmu.identification.effects.base import Combined
-from seafmu.identification.fitting import FitResult, p_text
+from seafmu.identification.fitting import FitResult, noise_only_text
 
 # synthetic trials live in ``synthetic``; importable from here for existing callers (benchmarks)
 from seafmu.identification.synthetic import DEMO_EFFECTS, SURGE, demo_trial
@@ -1061,9 +1061,7 @@ def explain(trial: Trial, base: FitResult, cands: list[Candidate], cause: Candid
         if w.get("white") is False:
             # The model is still wrong somewhere: say so rather than imply the data are explained.
             if "noise_only_p" in w:  # a maneuver: tested against what the sensor noise alone leaves
-                why = (f"holds more structure than the sensor noise leaves (Ljung-Box p "
-                       f"{p_text(w['noise_only_p'], w['noise_replicates'])} "
-                       f"over {w['noise_replicates']} noise-only replicates)")
+                why = f"holds more structure than the sensor noise leaves ({noise_only_text(w)})"
             else:
                 why = f"is not white (Ljung-Box p = {w['ljung_box_p']:.2g})"
             text += f"; but the baseline residual {why}: structure remains that no catalogue effect explains"

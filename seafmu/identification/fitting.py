@@ -176,6 +176,7 @@ def nonidentifiable_pairs(
 
 # the warning of a fit whose model diverges when simulated (maneuver fits); write-back refuses such a fit
 DIVERGED = "the fitted model diverges when simulated against the trial"
+DIVERGED_RESIDUAL = 1e3  # what a diverged simulation's residual is set to (normalised: far beyond any fit)
 
 
 def lags(n: int, max_lag: int = 20) -> int:
@@ -199,6 +200,12 @@ def ljung_box_q(r: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
 def p_text(p: float, replicates: int) -> str:
     """'= 0.21', or '<= 0.005' at the smallest p-value a test of that many replicates resolves."""
     return f"<= {p:.2g}" if p <= 1.0 / (1 + replicates) else f"= {p:.2g}"
+
+
+def noise_only_text(w: dict[str, Any]) -> str:
+    """'Ljung-Box p <= 0.005 over 199 noise-only replicates' of a maneuver whiteness result."""
+    n = w["noise_replicates"]
+    return f"Ljung-Box p {p_text(w['noise_only_p'], n)} over {n} noise-only replicates"
 
 
 def whiteness_test(residual: np.ndarray, max_lag: int = 20) -> dict[str, Any]:

@@ -19,7 +19,7 @@ import numpy as np
 
 from seafmu.identification.catalogue import CATALOGUE, param_unit
 from seafmu.identification.diagnosis import Diagnosis, Identification
-from seafmu.identification.fitting import FitResult, p_text
+from seafmu.identification.fitting import FitResult, noise_only_text
 from seafmu.identification.trial import ROTATIONAL, Trial
 
 
@@ -294,10 +294,8 @@ def fit_table(fit: FitResult, trial: Trial) -> list[str]:
                                                  f"NOT white ({_g(100 * w['fraction_outside'], 3)} % of "
                                                  f"{w['lags']} lags outside ±1.96/√n)")
     if "noise_only_p" in w:  # a maneuver's restarted simulation: its null is the noise-only residual
-        white = (f"{'no structure' if w['white'] else 'STRUCTURE'} beyond the sensor noise (Ljung-Box p "
-                 f"{p_text(w['noise_only_p'], w['noise_replicates'])} against {w['noise_replicates']} "
-                 "noise-only replicates; "
-                 f"against white noise p = {_g(w['ljung_box_p'], 2)})")
+        white = (f"{'no structure' if w['white'] else 'STRUCTURE'} beyond the sensor noise "
+                 f"({noise_only_text(w)}; against white noise p = {_g(w['ljung_box_p'], 2)})")
     lines += [
         f"- method: {fit.method}; {fit.n_samples} fitted samples",
         f"- NRMSE fit {_g(fit.nrmse_fit)} (fit {_g(fit.fit_percent())} %), "

@@ -247,9 +247,8 @@ def updates_from_fit(fit: FitResult, vessel: VesselSpec, entries: str = "diagona
     if entries not in ("diagonal", "all"):
         raise ValueError(f"entries must be 'diagonal' or 'all', got {entries!r}")
     if any(DIVERGED in w for w in fit.warnings):  # a vessel file from it would make every later run diverge
-        raise ValueError("the fitted model diverges when simulated against the trial: no vessel-file values "
-                         "from it (a log that excites every DOF, or method='output_error': "
-                         "docs/maneuver_identification.md)")
+        raise ValueError(f"{DIVERGED}: no vessel-file values from it (a log that excites every DOF, or "
+                         "the output-error method: docs/maneuver_identification.md)")
     updates: dict[str, float] = {}
     prov: dict[str, str] = {"method": fit.method}
     if trial or fit.extras.get("source"):
@@ -358,8 +357,7 @@ def write_vessel_file(trial: Trial, fit: FitResult, out_path: Path, method: str,
         try:
             updates, mprov = updates_from_fit(fit, spec, trial=trial.name)
         except ValueError as exc:
-            return (f"write-back refused: {str(exc).replace('method=', '--method ')}; no vessel file "
-                    "written"), None
+            return f"write-back refused: {exc}; no vessel file written", None
         if not updates:
             return "write-back skipped: the maneuver fit has no vessel-file parameters", None
         notes = _clamp_negative_damping(updates)

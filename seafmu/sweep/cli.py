@@ -46,7 +46,8 @@ def study_path(arg: str) -> Path:
     p = Path(arg)
     if p.is_file():
         return p
-    from seafmu.scenario import REPO, did_you_mean
+    from seafmu.components.names import did_you_mean
+    from seafmu.scenario import REPO
     from seafmu.sweep.study import StudyError
 
     shipped = REPO / "studies" / arg / "study.yaml"
@@ -98,9 +99,8 @@ def _build(study: Study) -> bool:
     """Build the base scenario's FMUs if their sources changed (the workers only read them); True if
     any was rebuilt."""
     from seafmu.build import build_fmu
-    from seafmu.scenario import load_scenario
 
-    sc = next(iter(study.scenarios.values()), None) or load_scenario(study.scenario_file)
+    sc = study.base_scenario()
     rebuilt = False
     for inst in sc.instances:
         if inst.kind is not None and build_fmu(sc.vessel, inst.kind).rebuilt:

@@ -60,25 +60,15 @@ def spearman(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
 
 
 def check_bounds(study: Study) -> dict[str, tuple[float | None, float | None]]:
-    """Each check of the base scenario: (min, max), by the name the results carry (the checks kept
-    by the study's validation, else read again)."""
-    checks = study.checks
-    if checks is None:
-        from seafmu.scenario import load_scenario
-
-        checks = load_scenario(study.scenario_file).checks
-    return {check_name(c): (c.min, c.max) for c in checks}
+    """Each check of the base scenario: (min, max), by the name the results carry."""
+    return {check_name(c): (c.min, c.max) for c in study.base_scenario().checks}
 
 
 def check_units(study: Study) -> dict[str, str]:
     """The unit of each check's value, by check name: its signal's (rad for an angle check). A
     label's decoration: a scenario that does not load gives none, never a failed report."""
     try:
-        sc = next(iter(study.scenarios.values()), None)
-        if sc is None:
-            from seafmu.scenario import load_scenario
-
-            sc = load_scenario(study.scenario_file)
+        sc = study.base_scenario()
         units = {}
         for c in sc.checks:
             inst, var = c.signal.split(".", 1)

@@ -207,9 +207,16 @@ class Study:
     design: np.ndarray | None = None  # unit-cube design of the sampled inputs (saltelli: for SALib)
     sampled_names: list[str] = field(default_factory=list)
     # filled by validate_cases: each case's resolved scenario (up to KEEP_SCENARIOS cases) and the
-    # base scenario's checks (overrides set parameters and events, never checks)
+    # first one validated, which stands for the base scenario's checks and variables (overrides set
+    # parameters and events, never checks or units)
     scenarios: dict[int, Any] = field(default_factory=dict)
-    checks: list[Any] | None = None
+    base: Any = None
+
+    def base_scenario(self) -> Any:
+        """The base scenario as validated (loaded once here if the cases were not validated)."""
+        if self.base is None:
+            self.base = load_scenario(self.scenario_file)
+        return self.base
 
     @property
     def scenario_arg(self) -> str:
@@ -500,8 +507,8 @@ def validate_cases(study: Study, cases: list[Case] | None = None) -> None:
                              f"{'' if c.seed is None else f', seed {c.seed}'}): {exc}") from None
         if keep:
             study.scenarios[c.index] = sc
-        if study.checks is None:
-            study.checks = list(sc.checks)
+        if study.base is None:
+            study.base = sc
             recorded = {f"{i}.{v}" for i, v in sc.outputs}
             for k, sig in enumerate(study.model.keep):
                 if sig not in recorded:

@@ -44,7 +44,7 @@ def run(args: argparse.Namespace) -> int:
 
     vessel = args.vessel
     if vessel not in bundled_vessels():
-        from seafmu.scenario import did_you_mean
+        from seafmu.components.names import did_you_mean
 
         known = bundled_vessels()
         print(f"seafmu: error: vessel '{vessel}': not a bundled vessel{did_you_mean(vessel, known)} "

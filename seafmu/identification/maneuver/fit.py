@@ -305,7 +305,8 @@ def _simulation_scores(fit_setup: _SimSetup, val_setup: _SimSetup | None, M: np.
                        D_Q: np.ndarray, eff: dict[str, np.ndarray] | None, extras: dict[str, Any],
                        warnings: list[str]) -> tuple[float, float, np.ndarray]:
     """Simulation NRMSE on the fitted and the held-out part (per DOF into ``extras``, with the
-    prediction traces) and the normalised residual of the fitted part (1e3 where it diverged)."""
+    prediction traces) and the normalised residual of the fitted part (``fitting.DIVERGED_RESIDUAL``
+    where it diverged)."""
     d = M.shape[0]
     nu_names = NU_NAMES[d]
     nr_fit, res_fit = _nrmse_per_dof(fit_setup, M, D_L, D_Q, eff)
@@ -324,7 +325,7 @@ def _simulation_scores(fit_setup: _SimSetup, val_setup: _SimSetup | None, M: np.
         extras["predictions"].append(_trace(val_setup, M, D_L, D_Q, "validation", eff))
     if not np.all(np.isfinite(res_fit)):
         warnings.append(f"{fitting.DIVERGED} (unstable)")
-        res_ok = np.nan_to_num(res_fit, nan=1e3)
+        res_ok = np.nan_to_num(res_fit, nan=fitting.DIVERGED_RESIDUAL)
     else:
         res_ok = res_fit
     return nrmse_fit, nrmse_validation, res_ok

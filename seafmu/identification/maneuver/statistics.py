@@ -65,7 +65,7 @@ def whiteness(setup: _SimSetup, M: np.ndarray, DL: np.ndarray, DQ: np.ndarray,
     leaves them (``_Prepared.noise_gain``). A DOF is white when its Ljung-Box Q is not above
     what 1 % of those noise-only residuals reach (``noise_only_p`` >= 0.01)."""
     plain = _whiteness(residual, names)
-    finite = bool(np.all(np.isfinite(residual))) and not np.any(np.abs(residual) >= 1e3)  # 1e3: diverged
+    finite = bool(np.all(np.isfinite(residual))) and not np.any(np.abs(residual) >= fitting.DIVERGED_RESIDUAL)
     if plain["white"] or not finite or plain["lags"] == 0:
         return plain
     d = len(names)
