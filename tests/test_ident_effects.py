@@ -64,7 +64,7 @@ class _SurgePull(CatalogueEffect):
     def maneuver_params(self, d: int) -> list[str]:
         return ["F_pull"]
 
-    def maneuver_scales(self, tau: np.ndarray) -> list[float]:
+    def maneuver_scales(self, tau: np.ndarray, nu: np.ndarray | None = None) -> list[float]:
         return [0.05 * max(float(tau[:, 0].std()), 1e-3)]
 
     def maneuver_terms(self, P: np.ndarray) -> dict[str, np.ndarray]:

@@ -45,9 +45,10 @@ def not_applicable(name: str, trial: Trial) -> str | None:
     """None if the effect can be observed in this trial, else the reason it cannot."""
     if trial.kind == "maneuver":
         if name in MANEUVER_EFFECTS:
-            return None
+            return effects.get(name).maneuver_applies(trial)  # type: ignore[union-attr]
         return (f"a maneuver log is fitted as a whole model; of the catalogue only "
-                f"{' and '.join(MANEUVER_EFFECTS)} are maneuver-level extensions so far")
+                f"{', '.join(MANEUVER_EFFECTS[:-1])} and {MANEUVER_EFFECTS[-1]} are maneuver-level "
+                "extensions so far")
     if trial.dof == "sway_yaw":
         return None if name == "coupling" else "a sway_yaw trial tests the coupling only"
     obj = effects.get(name)

@@ -75,6 +75,8 @@ class Candidate:
     # the fit parameters of each effect in ``effects`` (same order); empty: the effect's own names
     # found in the fit. Given where one effect appears twice (two thrusters lost, each located).
     groups: tuple[tuple[str, ...], ...] = ()
+    # whether each effect in ``effects`` has a significant parameter in this fit (``judge``)
+    significant_each: tuple[bool, ...] = ()
 
     def __post_init__(self) -> None:
         if not self.effects:
@@ -469,7 +471,7 @@ def judge(name: str, base: FitResult, fit: FitResult, trial: Trial, rule: Rule,
         reasons.append(f"{', '.join(at_bound)} at the bound of its range: the data push the effect beyond "
                        "what it can mean")
     return Candidate(name, fit, ratio, dAIC, all(sig_each), not reasons, "; ".join(reasons) or "accepted",
-                     seconds, names, groups=groups)
+                     seconds, names, groups=groups, significant_each=tuple(sig_each))
 
 
 def _at_bound(x: float, b: tuple[float, float]) -> bool:
@@ -982,13 +984,16 @@ def _member_order(cause: Candidate, cands: list[Candidate]) -> list[int]:
 def choose(cands: list[Candidate], rule: Rule | None = None) -> Candidate | None:
     """Best accepted candidate: lowest held-out NRMSE; within 1 % of it, the lowest AIC.
 
-    Two kinds of candidate must first earn their place by the rule's margins (held-out ratio and
-    gain, dAIC) over every simpler accepted explanation: a combination over each accepted candidate
-    with fewer effects (the smallest combination that explains the data), and a general family
-    (a power law, ``general``) over each accepted specific effect whose shape it contains.
+    A single effect that a combination with another accepted effect explains away (its parameters
+    insignificant there, the other's significant: ``_explained_away``) is not a candidate. Two
+    kinds of candidate must first earn their place by the rule's margins (held-out ratio and gain,
+    dAIC) over every simpler accepted explanation: a combination over each accepted candidate with
+    fewer effects (the smallest combination that explains the data), and a general family (a power
+    law, ``general``) over each accepted specific effect whose shape it contains.
     """
     rule = rule or Rule()
     ok = [c for c in cands if c.accepted and c.fit is not None]
+    ok = [c for c in ok if not _explained_away(c, cands, ok)] or ok
     eligible = [c for c in ok if not _beaten_by_simpler(c, ok, rule)]
     ok = eligible or ok
     if not ok:
@@ -996,6 +1001,31 @@ def choose(cands: list[Candidate], rule: Rule | None = None) -> Candidate | None
     best = min(c.fit.nrmse_validation for c in ok)  # type: ignore[union-attr]
     near = [c for c in ok if c.fit.nrmse_validation <= best * 1.01]  # type: ignore[union-attr]
     return min(near, key=lambda c: c.fit.aic)  # type: ignore[union-attr]
+
+
+def _explained_away(c: Candidate, cands: list[Candidate], ok: list[Candidate]) -> bool:
+    """True when a fit of ``c``'s effect together with another accepted one leaves ``c``'s parameters
+    insignificant while the other's stay significant, and the other alone has the lower AIC: in
+    the model that has both, the other explains what ``c`` did (e.g. a steady force standing in for
+    a wrong sway-yaw coupling, found better on the held-out part by chance)."""
+    if c.size != 1:
+        return False
+    mine = c.members()[0]
+    assert c.fit is not None
+    # accepted singles the information criterion prefers to c (lag and delay, fitted together, split
+    # their significance by chance: the one with the better AIC alone is not explained away)
+    accepted = {m for o in ok if o.size == 1 and o.fit is not None and o.fit.aic < c.fit.aic
+                for m in o.members()}
+    for pair in cands:
+        if pair.fit is None or pair.size < 2 or len(pair.significant_each) != pair.size:
+            continue
+        members = pair.members()
+        if mine not in members:
+            continue
+        sig = dict(zip(members, pair.significant_each, strict=True))
+        if not sig[mine] and any(sig[m] for m in members if m != mine and m in accepted):
+            return True
+    return False
 
 
 def _general(c: Candidate) -> bool:

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from seafmu.components.vessel_spec import VesselFileError, VesselSpec, load_vessel, vessel_path
+from seafmu.components.vessel_spec import TAU_NAMES, VesselFileError, VesselSpec, load_vessel, vessel_path
 from seafmu.identification.fitting import DIVERGED, FitResult
 from seafmu.identification.trial import DOF_INDEX, Trial
 
@@ -272,7 +272,31 @@ def updates_from_fit(fit: FitResult, vessel: VesselSpec, entries: str = "diagona
             key = f"{field}[{a}][{b}]"
             updates[key] = val - shift
             prov[key] = f"95 % CI [{lo - shift:.6g}, {hi - shift:.6g}]"
+    _sway_yaw_coupling(fit, vessel, updates, prov)
     return updates, prov
+
+
+# the diagnosis's ``coupling`` extension of a maneuver fit: its derivative, the vessel-file field and
+# (row, column) by the DOF names of sway (Y) and yaw (N)
+_COUPLING = (("Y_r", "linear_damping", "YN"), ("N_v", "linear_damping", "NY"),
+             ("Y_r_quadratic", "quadratic_damping", "YN"), ("N_v_quadratic", "quadratic_damping", "NY"))
+
+
+def _sway_yaw_coupling(fit: FitResult, vessel: VesselSpec, updates: dict[str, float],
+                       prov: dict[str, str]) -> None:
+    """A fitted sway-yaw coupling (derivatives beyond the vessel file's) as the file's entries:
+    D = -[derivatives], so each entry is the file's minus the derivative (its CI mirrored). Written
+    whatever ``entries`` says: the extension fits exactly these entries, unlike an LS off-diagonal."""
+    names = TAU_NAMES[vessel.dof]
+    for param, field, (row, col) in _COUPLING:
+        if param not in fit.params:
+            continue
+        a, b = names.index(row), names.index(col)
+        now = float(np.asarray(vessel.D_L if field == "linear_damping" else vessel.D_Q)[a, b])
+        lo, hi = fit.ci95.get(param, (float("nan"), float("nan")))
+        key = f"{field}[{a}][{b}]"
+        updates[key] = now - fit.params[param]
+        prov[key] = f"95 % CI [{now - hi:.6g}, {now - lo:.6g}]"
 
 
 def _clamp_negative_damping(updates: dict[str, float]) -> list[str]:

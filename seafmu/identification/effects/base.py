@@ -81,9 +81,11 @@ class CatalogueEffect(ABC):
 
     - ``maneuver_params(d)``: the parameter names it adds to a d-DOF fit (their "absent" value is
       ``absent``, where output error starts them);
-    - ``maneuver_scales(tau)``: one optimiser scale per parameter, from the logged forces (n, d);
+    - ``maneuver_scales(tau, nu)``: one optimiser scale per parameter, from the logged forces and
+      velocities (n, d each; ``nu`` may be None);
     - ``maneuver_terms(P)``: the simulator's keyword arguments (``F0`` a force added to tau,
-      ``vc`` a NED current; ``maneuver.simulation._Simulator.run``) from the parameter values
+      ``vc`` a NED current, ``thrust_gain`` per thruster, ``dDL``/``dDQ`` damping added to the
+      vessel file's; ``maneuver.simulation._Simulator.run``) from the parameter values
       P (K, n_params) of K parameter sets;
     - ``maneuver_evidence(params)``: the finding in words, from the fitted parameters.
     """
@@ -228,10 +230,14 @@ class CatalogueEffect(ABC):
 
     # -- maneuver model --
 
+    def maneuver_applies(self, trial: Trial) -> str | None:
+        """None where the maneuver extension is tried on this log, else the reason it is not."""
+        return None
+
     def maneuver_params(self, d: int) -> list[str]:
         raise EffectNotSupported(f"effect '{self.name}' has no maneuver-level extension")
 
-    def maneuver_scales(self, tau: np.ndarray) -> list[float]:
+    def maneuver_scales(self, tau: np.ndarray, nu: np.ndarray | None = None) -> list[float]:
         raise EffectNotSupported(f"effect '{self.name}' has no maneuver-level extension")
 
     def maneuver_terms(self, P: np.ndarray) -> dict[str, np.ndarray]:
@@ -243,7 +249,7 @@ class CatalogueEffect(ABC):
 
 class Combined(CatalogueEffect):
     """Several maneuver effects (or located variants of one) fitted together: their parameters side
-    by side, their simulator terms merged (forces add, currents add, thrust gains multiply). Not
+    by side, their simulator terms merged (forces, currents and damping add, thrust gains multiply). Not
     registered: the diagnosis's combination search builds it from the parts."""
 
     maneuver = True
@@ -268,8 +274,8 @@ class Combined(CatalogueEffect):
     def maneuver_params(self, d: int) -> list[str]:
         return [q for p in self.parts for q in p.maneuver_params(d)]
 
-    def maneuver_scales(self, tau: np.ndarray) -> list[float]:
-        return [x for p in self.parts for x in p.maneuver_scales(tau)]
+    def maneuver_scales(self, tau: np.ndarray, nu: np.ndarray | None = None) -> list[float]:
+        return [x for p in self.parts for x in p.maneuver_scales(tau, nu)]
 
     def maneuver_terms(self, P: np.ndarray) -> dict[str, np.ndarray]:
         out: dict[str, np.ndarray] = {}

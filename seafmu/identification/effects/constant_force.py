@@ -64,7 +64,7 @@ class ConstantForce(CatalogueEffect):
 
         return [f"F_0[{n}]" for n in TAU_NAMES[d]]
 
-    def maneuver_scales(self, tau: np.ndarray) -> list[float]:
+    def maneuver_scales(self, tau: np.ndarray, nu: np.ndarray | None = None) -> list[float]:
         return list(0.05 * np.maximum(tau.std(axis=0), 1e-3))  # a few % of the force each DOF sees
 
     def maneuver_terms(self, P: np.ndarray) -> dict[str, np.ndarray]:

@@ -1,9 +1,19 @@
-"""Coupling: cross-coupling between DOFs (sway-yaw Y_r, N_v)."""
+"""Coupling: cross-coupling between DOFs (sway-yaw Y_r, N_v).
+
+In a sway_yaw trial the baseline has no coupling and the effect is the coupling itself. In a
+maneuver log the baseline is the vessel file's full model, its damping diagonals fitted; the effect
+is what the file's sway-yaw damping coupling gets wrong: the hydrodynamic derivatives Y_r, N_v
+(linear) and Y_|r|r, N_|v|v (``Y_r_quadratic``, ``N_v_quadratic``) added to the file's, i.e.
+D_L[v,r] -= Y_r, D_L[r,v] -= N_v, D_Q[v,r] -= Y_|r|r, D_Q[r,v] -= N_|v|v (Fossen's D = -[derivatives];
+``maneuver.simulation._Simulator.run``'s ``sway_yaw``).
+"""
 
 from __future__ import annotations
 
 import dataclasses
 from typing import TYPE_CHECKING, Any, ClassVar
+
+import numpy as np
 
 from seafmu.identification.effects.base import CatalogueEffect, Hiding, fmt, register, replace_matrix, unit
 
@@ -16,15 +26,18 @@ class Coupling(CatalogueEffect):
     name = "coupling"
     meaning = "cross-coupling between DOFs (sway-yaw Y_r, N_v)"
     params = ("Y_r", "N_v")
-    observable_in = "sway_yaw step or decay with v and r measured"
+    observable_in = ("sway_yaw step or decay with v and r measured; maneuver (the vessel file's sway-yaw "
+                     "damping coupling off by Y_r, N_v, Y_r_quadratic, N_v_quadratic)")
     position = 14
+    maneuver = True
     families = ("sway_yaw",)
     demo_kinds = ("sway_yaw",)
     plant = ("sway_yaw_decay", "vessel D_L[1][2] = D_L[2][1] = 8 (Y_r = N_v = -8)")
-    _units: ClassVar[dict[str, str]] = {"Y_r": "N/(rad/s)", "N_v": "N·m/(m/s)"}
+    _units: ClassVar[dict[str, str]] = {"Y_r": "N/(rad/s)", "N_v": "N·m/(m/s)",
+                                        "Y_r_quadratic": "N/(rad/s)²", "N_v_quadratic": "N·m/(m/s)²"}
 
     def unit(self, param: str, trial: Trial) -> str:
-        return self._units.get(param, "") if trial.dof == "sway_yaw" else ""
+        return self._units.get(param, "") if trial.dof == "sway_yaw" or trial.kind == "maneuver" else ""
 
     def timeseries_start_grid(self, s: dict[str, float], vals: dict[str, float], model: Any,
                               preps: list[Any]) -> list[dict[str, float]]:
@@ -46,6 +59,52 @@ class Coupling(CatalogueEffect):
 
     def hide_in_plant(self, kind: str, amplitude: float) -> Hiding:
         return Hiding(vessel=_coupled)
+
+    # -- maneuver model --
+
+    def maneuver_applies(self, trial: Trial) -> str | None:
+        """3-DOF logs (a surface vessel's sway-yaw maneuvering coupling) only. In 6-DOF Minerva 2 logs
+        with a current and lost thrusters the four derivatives took over what those explain
+        (N_|v|v = 696, Y_r = -73 +- 675 beside a lost thruster instead of the current), and no test
+        of physical sense (a dissipative sway-yaw block) is made yet to reject such a fit."""
+        from seafmu.components.vessel_spec import VesselFileError, load_vessel
+
+        try:
+            dof = load_vessel(trial.vessel).dof if trial.vessel else None
+        except (VesselFileError, OSError, ValueError):
+            dof = None
+        return None if dof == 3 else "the maneuver-level sway-yaw coupling is fitted to 3-DOF models only"
+
+    def maneuver_params(self, d: int) -> list[str]:
+        """Y_r, N_v and their quadratic forms Y_|r|r, N_|v|v, beyond the vessel file's."""
+        return ["Y_r", "N_v", "Y_r_quadratic", "N_v_quadratic"]
+
+    def maneuver_scales(self, tau: np.ndarray, nu: np.ndarray | None = None) -> list[float]:
+        """A few % of the sway force (yaw moment) per rms yaw rate (sway speed), and per its square."""
+        # imported here: the catalogue imports this module, which stays light without the components
+        from seafmu.components.vessel_spec import TAU_NAMES
+
+        v, r = TAU_NAMES[tau.shape[1]].index("Y"), TAU_NAMES[tau.shape[1]].index("N")
+        f = 0.05 * np.maximum(tau.std(axis=0), 1e-3)
+        d = tau.shape[1]
+        s = np.maximum(np.sqrt(np.mean(nu**2, axis=0)), 1e-3) if nu is not None else np.full(d, 0.1)
+        return [float(f[v] / s[r]), float(f[r] / s[v]), float(f[v] / s[r] ** 2), float(f[r] / s[v] ** 2)]
+
+    def maneuver_terms(self, P: np.ndarray) -> dict[str, np.ndarray]:
+        return {"sway_yaw": P[:, :4]}
+
+    def maneuver_evidence(self, params: dict[str, float]) -> str:
+        def one(key: str, label: str, unit: str) -> str | None:
+            if key not in params:
+                return None
+            hw = params.get(f"{key}_halfwidth")
+            return f"{label} = {fmt(params[key])}{'' if hw is None else f' ± {fmt(hw)}'} {unit}"
+
+        labels = {"Y_r": "Y_r", "N_v": "N_v", "Y_r_quadratic": "Y_|r|r", "N_v_quadratic": "N_|v|v"}
+        parts = [x for k, label in labels.items() if (x := one(k, label, self._units[k]))]
+        return ("the sway-yaw damping coupling of the vessel file is off: the hull's coupling derivatives "
+                "differ from the file's by " + ", ".join(parts) + " (its D_L and D_Q sway-yaw and yaw-sway "
+                "entries change by minus these)")
 
 
 def _coupled(spec: Any) -> Any:

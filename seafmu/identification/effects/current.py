@@ -73,7 +73,7 @@ class Current(CatalogueEffect):
         """The NED current (north, east), m/s."""
         return ["v_c_north", "v_c_east"]
 
-    def maneuver_scales(self, tau: np.ndarray) -> list[float]:
+    def maneuver_scales(self, tau: np.ndarray, nu: np.ndarray | None = None) -> list[float]:
         return [0.1, 0.1]  # m/s
 
     def maneuver_terms(self, P: np.ndarray) -> dict[str, np.ndarray]:

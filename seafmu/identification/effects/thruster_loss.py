@@ -94,7 +94,7 @@ class ThrusterLoss(CatalogueEffect):
         """eta_T[i] of the hypothesised thruster (the unlocated effect: eta_T)."""
         return [PARAM if self.thruster is None else param_name(self.thruster)]
 
-    def maneuver_scales(self, tau: np.ndarray) -> list[float]:
+    def maneuver_scales(self, tau: np.ndarray, nu: np.ndarray | None = None) -> list[float]:
         return [0.1]  # a tenth of the nominal thrust
 
     def maneuver_terms(self, P: np.ndarray) -> dict[str, np.ndarray]:

@@ -711,7 +711,7 @@ def _output_error_held(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | N
     sL = np.maximum(np.abs(p0[:nL]), sQ_all[fL] * nu_abs[fL] + 1e-6)
     scales = [*sL, *sQ] + ([*np.abs(p0[nL + nQ : nL + nQ + d])] if added_mass else [])
     if eff is not None:
-        scales += eff.maneuver_scales(prep.tau)
+        scales += eff.maneuver_scales(prep.tau, prep.nu_raw)
     scales = np.maximum(np.array(scales), 1e-9)
     # initial state of every segment is estimated too (multiple shooting without continuity):
     # restarting from a noisy measured state biases the damping (measured: -7 % in sway)

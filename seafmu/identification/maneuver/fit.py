@@ -484,7 +484,7 @@ def screen_extensions(problem: ManeuverProblem, start: dict[str, float], members
     # the reference: the start's values of the members it has (a fit with some of them), else absent
     absent = np.concatenate([np.full(n, m.absent) for m, n in zip(members, sizes, strict=True)])
     ref = np.array([start.get(nm, a) for nm, a in zip(enames, absent, strict=True)])
-    h_e = np.asarray(allm.maneuver_scales(prep.tau), dtype=float)
+    h_e = np.asarray(allm.maneuver_scales(prep.tau, prep.nu_raw), dtype=float)
     nu_rms = np.sqrt(np.mean(prep.nu_raw**2, axis=0))
     sQ = np.maximum(np.abs(np.diag(DQ0)), 1e-3 * np.diag(M0))
     h_d = np.array([1e-2 * (sQ[i] if nm.startswith("D_Q") else max(abs(DL0[i, i]), sQ[i] * nu_rms[i] + 1e-6))

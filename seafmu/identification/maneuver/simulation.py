@@ -12,7 +12,7 @@ import numpy as np
 
 from seafmu.components.kernels import maneuver as maneuver_kernel
 from seafmu.components.thrusters import thruster_matrix
-from seafmu.components.vessel_spec import VesselSpec
+from seafmu.components.vessel_spec import TAU_NAMES, VesselSpec
 from seafmu.identification import fitting
 from seafmu.identification.maneuver.preprocessing import _Prepared
 from seafmu.identification.maneuver.terms import _Restoring, _sym, coriolis_tensor
@@ -38,7 +38,8 @@ class _Simulator:
     from the measured (smoothed) state, so a fit is not dominated by drift from one start.
     Same equations as ``VesselModel.derivative`` without current (checked by a test).
 
-    Diagnosis extensions (``run(..., F0=, vc=)``): a constant generalised force F0 added to tau,
+    Diagnosis extensions (``run(..., F0=, vc=, thrust_gain=, sway_yaw=)``): sway-yaw damping
+    coupling added to D_L and D_Q, a thruster's gain, a constant generalised force F0 added to tau,
     and a constant NED current vc = (north, east): damping and the added-mass Coriolis terms then
     act on nu_r = nu - R^T [vc; 0] as in the plant (C_RB(nu) nu + C_A(nu_r) nu_r), with R from the
     simulated roll/pitch and the *measured* heading (``psi``, set by ``_sim_setup``).
@@ -79,12 +80,22 @@ class _Simulator:
 
     def run(self, M: np.ndarray, DL: np.ndarray, DQ: np.ndarray, x0: np.ndarray | None = None,
             F0: np.ndarray | None = None, vc: np.ndarray | None = None,
-            thrust_gain: np.ndarray | None = None) -> np.ndarray:
+            thrust_gain: np.ndarray | None = None, sway_yaw: np.ndarray | None = None) -> np.ndarray:
         """Simulated states (K, S, L+1, nx) for K parameter sets (M, DL, DQ each (K, d, d));
         ``x0`` (K, S, nx) replaces the measured segment starts; ``F0`` (K, d) constant force,
         ``vc`` (K, 2) NED current (see the class docstring); ``thrust_gain`` (K, m) the fraction
-        of each thruster's thrust that acts (needs ``thrust``, set by ``_sim_setup``)."""
+        of each thruster's thrust that acts (needs ``thrust``, set by ``_sim_setup``); ``sway_yaw``
+        (K, 4) sway-yaw hydrodynamic derivatives Y_r, N_v, Y_|r|r, N_|v|v added to the model's
+        (Fossen's D = -[derivatives]: they enter DL and DQ with the sign changed)."""
         K = M.shape[0]
+        if sway_yaw is not None:
+            v, r = TAU_NAMES[self.d].index("Y"), TAU_NAMES[self.d].index("N")
+            P = np.asarray(sway_yaw, dtype=float)
+            DL, DQ = np.array(DL, dtype=float), np.array(DQ, dtype=float)
+            DL[:, v, r] -= P[:, 0]
+            DL[:, r, v] -= P[:, 1]
+            DQ[:, v, r] -= P[:, 2]
+            DQ[:, r, v] -= P[:, 3]
         cur = vc is not None and self.psi is not None and self.psi_mid is not None
         d = self.d
         # W_k = [M^-1, -M^-1 T(M) (Coriolis; C_RB and C_A apart with a current), -M^-1 D_L, -M^-1 D_Q]^T,
