@@ -22,7 +22,8 @@ from typing import Any
 import numpy as np
 import yaml
 
-from seafmu.components.vessel_spec import TAU_NAMES, VesselFileError, VesselSpec, load_vessel, vessel_path
+from seafmu.components.vessel_spec import VesselFileError, VesselSpec, load_vessel, vessel_path
+from seafmu.identification.effects.coupling import sway_yaw_entries
 from seafmu.identification.fitting import DIVERGED, FitResult
 from seafmu.identification.trial import DOF_INDEX, Trial
 
@@ -263,7 +264,7 @@ def updates_from_fit(fit: FitResult, vessel: VesselSpec, entries: str = "diagona
             continue
         lo, hi = fit.ci95.get(name, (float("nan"), float("nan")))
         val = fit.params[name]
-        field = {"M": "added_mass", "D_L": "linear_damping", "D_Q": "quadratic_damping"}[kind]
+        field = FIELD_ALIASES["M_A" if kind == "M" else kind]
         pairs = [(i, j)]
         if kind == "M" and i != j and f"M[{j},{i}]" not in names:
             pairs.append((j, i))
@@ -276,25 +277,18 @@ def updates_from_fit(fit: FitResult, vessel: VesselSpec, entries: str = "diagona
     return updates, prov
 
 
-# the diagnosis's ``coupling`` extension of a maneuver fit: its derivative, the vessel-file field and
-# (row, column) by the DOF names of sway (Y) and yaw (N)
-_COUPLING = (("Y_r", "linear_damping", "YN"), ("N_v", "linear_damping", "NY"),
-             ("Y_r_quadratic", "quadratic_damping", "YN"), ("N_v_quadratic", "quadratic_damping", "NY"))
-
-
 def _sway_yaw_coupling(fit: FitResult, vessel: VesselSpec, updates: dict[str, float],
                        prov: dict[str, str]) -> None:
-    """A fitted sway-yaw coupling (derivatives beyond the vessel file's) as the file's entries:
-    D = -[derivatives], so each entry is the file's minus the derivative (its CI mirrored). Written
-    whatever ``entries`` says: the extension fits exactly these entries, unlike an LS off-diagonal."""
-    names = TAU_NAMES[vessel.dof]
-    for param, field, (row, col) in _COUPLING:
+    """A fitted sway-yaw coupling (derivatives beyond the vessel file's, ``effects.coupling``) as the
+    file's entries: D = -[derivatives], so each entry is the file's minus the derivative (its CI
+    mirrored). Written whatever ``entries`` says: the extension fits exactly these entries, unlike
+    an LS off-diagonal."""
+    for param, matrix, a, b in sway_yaw_entries(vessel.dof):
         if param not in fit.params:
             continue
-        a, b = names.index(row), names.index(col)
-        now = float(np.asarray(vessel.D_L if field == "linear_damping" else vessel.D_Q)[a, b])
+        now = float(np.asarray(getattr(vessel, matrix))[a, b])
         lo, hi = fit.ci95.get(param, (float("nan"), float("nan")))
-        key = f"{field}[{a}][{b}]"
+        key = f"{FIELD_ALIASES[matrix]}[{a}][{b}]"
         updates[key] = now - fit.params[param]
         prov[key] = f"95 % CI [{now - hi:.6g}, {now - lo:.6g}]"
 

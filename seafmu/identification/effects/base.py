@@ -84,8 +84,8 @@ class CatalogueEffect(ABC):
     - ``maneuver_scales(tau, nu)``: one optimiser scale per parameter, from the logged forces and
       velocities (n, d each; ``nu`` may be None);
     - ``maneuver_terms(P)``: the simulator's keyword arguments (``F0`` a force added to tau,
-      ``vc`` a NED current, ``thrust_gain`` per thruster, ``dDL``/``dDQ`` damping added to the
-      vessel file's; ``maneuver.simulation._Simulator.run``) from the parameter values
+      ``vc`` a NED current, ``thrust_gain`` per thruster, ``sway_yaw`` coupling derivatives;
+      ``maneuver.simulation._Simulator.run``) from the parameter values
       P (K, n_params) of K parameter sets;
     - ``maneuver_evidence(params)``: the finding in words, from the fitted parameters.
     """

@@ -3,9 +3,8 @@
 In a sway_yaw trial the baseline has no coupling and the effect is the coupling itself. In a
 maneuver log the baseline is the vessel file's full model, its damping diagonals fitted; the effect
 is what the file's sway-yaw damping coupling gets wrong: the hydrodynamic derivatives Y_r, N_v
-(linear) and Y_|r|r, N_|v|v (``Y_r_quadratic``, ``N_v_quadratic``) added to the file's, i.e.
-D_L[v,r] -= Y_r, D_L[r,v] -= N_v, D_Q[v,r] -= Y_|r|r, D_Q[r,v] -= N_|v|v (Fossen's D = -[derivatives];
-``maneuver.simulation._Simulator.run``'s ``sway_yaw``).
+(linear) and Y_|r|r, N_|v|v (``Y_r_quadratic``, ``N_v_quadratic``) added to the file's, each
+entering D_L or D_Q with the sign changed (``SWAY_YAW``).
 """
 
 from __future__ import annotations
@@ -77,18 +76,16 @@ class Coupling(CatalogueEffect):
 
     def maneuver_params(self, d: int) -> list[str]:
         """Y_r, N_v and their quadratic forms Y_|r|r, N_|v|v, beyond the vessel file's."""
-        return ["Y_r", "N_v", "Y_r_quadratic", "N_v_quadratic"]
+        return [param for param, *_ in SWAY_YAW]
 
     def maneuver_scales(self, tau: np.ndarray, nu: np.ndarray | None = None) -> list[float]:
-        """A few % of the sway force (yaw moment) per rms yaw rate (sway speed), and per its square."""
-        # imported here: the catalogue imports this module, which stays light without the components
-        from seafmu.components.vessel_spec import TAU_NAMES
-
-        v, r = TAU_NAMES[tau.shape[1]].index("Y"), TAU_NAMES[tau.shape[1]].index("N")
+        """A few % of the force (moment) of each derivative's row per rms speed of its column (per
+        its square for a quadratic one)."""
         f = 0.05 * np.maximum(tau.std(axis=0), 1e-3)
         d = tau.shape[1]
         s = np.maximum(np.sqrt(np.mean(nu**2, axis=0)), 1e-3) if nu is not None else np.full(d, 0.1)
-        return [float(f[v] / s[r]), float(f[r] / s[v]), float(f[v] / s[r] ** 2), float(f[r] / s[v] ** 2)]
+        return [float(f[a] / s[b] ** (2 if matrix == "D_Q" else 1))
+                for _, matrix, a, b in sway_yaw_entries(d)]
 
     def maneuver_terms(self, P: np.ndarray) -> dict[str, np.ndarray]:
         return {"sway_yaw": P[:, :4]}
@@ -105,6 +102,22 @@ class Coupling(CatalogueEffect):
         return ("the sway-yaw damping coupling of the vessel file is off: the hull's coupling derivatives "
                 "differ from the file's by " + ", ".join(parts) + " (its D_L and D_Q sway-yaw and yaw-sway "
                 "entries change by minus these)")
+
+
+# The maneuver extension's derivatives: (parameter, vessel-file matrix, row DOF, column DOF) by the
+# DOF names of sway (Y) and yaw (N); each enters its matrix with the sign changed (D = -[derivatives]).
+# The simulator (``maneuver.simulation._Simulator.run``) and the write-back read this one table.
+SWAY_YAW = (("Y_r", "D_L", "Y", "N"), ("N_v", "D_L", "N", "Y"),
+            ("Y_r_quadratic", "D_Q", "Y", "N"), ("N_v_quadratic", "D_Q", "N", "Y"))
+
+
+def sway_yaw_entries(d: int) -> list[tuple[str, str, int, int]]:
+    """``SWAY_YAW`` with the row and column as indices of a d-DOF model."""
+    # imported here: the catalogue imports this module, which stays light without the components
+    from seafmu.components.vessel_spec import TAU_NAMES
+
+    names = TAU_NAMES[d]
+    return [(param, matrix, names.index(row), names.index(col)) for param, matrix, row, col in SWAY_YAW]
 
 
 def _coupled(spec: Any) -> Any:

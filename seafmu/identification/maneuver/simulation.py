@@ -12,8 +12,9 @@ import numpy as np
 
 from seafmu.components.kernels import maneuver as maneuver_kernel
 from seafmu.components.thrusters import thruster_matrix
-from seafmu.components.vessel_spec import TAU_NAMES, VesselSpec
+from seafmu.components.vessel_spec import VesselSpec
 from seafmu.identification import fitting
+from seafmu.identification.effects.coupling import sway_yaw_entries
 from seafmu.identification.maneuver.preprocessing import _Prepared
 from seafmu.identification.maneuver.terms import _Restoring, _sym, coriolis_tensor
 
@@ -86,16 +87,14 @@ class _Simulator:
         ``vc`` (K, 2) NED current (see the class docstring); ``thrust_gain`` (K, m) the fraction
         of each thruster's thrust that acts (needs ``thrust``, set by ``_sim_setup``); ``sway_yaw``
         (K, 4) sway-yaw hydrodynamic derivatives Y_r, N_v, Y_|r|r, N_|v|v added to the model's
-        (Fossen's D = -[derivatives]: they enter DL and DQ with the sign changed)."""
+        (``effects.coupling.SWAY_YAW``: they enter DL and DQ with the sign changed)."""
         K = M.shape[0]
         if sway_yaw is not None:
-            v, r = TAU_NAMES[self.d].index("Y"), TAU_NAMES[self.d].index("N")
             P = np.asarray(sway_yaw, dtype=float)
-            DL, DQ = np.array(DL, dtype=float), np.array(DQ, dtype=float)
-            DL[:, v, r] -= P[:, 0]
-            DL[:, r, v] -= P[:, 1]
-            DQ[:, v, r] -= P[:, 2]
-            DQ[:, r, v] -= P[:, 3]
+            mats = {"D_L": np.array(DL, dtype=float), "D_Q": np.array(DQ, dtype=float)}
+            for k, (_, matrix, a, b) in enumerate(sway_yaw_entries(self.d)):
+                mats[matrix][:, a, b] -= P[:, k]
+            DL, DQ = mats["D_L"], mats["D_Q"]
         cur = vc is not None and self.psi is not None and self.psi_mid is not None
         d = self.d
         # W_k = [M^-1, -M^-1 T(M) (Coriolis; C_RB and C_A apart with a current), -M^-1 D_L, -M^-1 D_Q]^T,
