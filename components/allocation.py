@@ -46,10 +46,8 @@ from typing import Any
 
 import numpy as np
 
-from . import registry
+from . import kernels, registry
 from .block import Block, Interface, Signal
-from .kernels import alloc as alloc_kernel
-from .kernels import thrust_law
 from .thrusters import max_thrust, speed_to_thrust, thrust_to_speed, thruster_matrix
 from .vessel_spec import TAU_NAMES, VesselSpec
 
@@ -292,7 +290,7 @@ class QPAllocator:
         m, n = self.m, self.n
         bu, bl = self._bu, self._bl
         c = np.ascontiguousarray
-        alloc_kernel.qp_bounds(bu, bl, c(lo, dtype=float), c(hi, dtype=float), c(tau, dtype=float), n)
+        kernels.alloc.qp_bounds(bu, bl, c(lo, dtype=float), c(hi, dtype=float), c(tau, dtype=float), n)
         if self._model is None:
             self._setup()
         else:
@@ -449,7 +447,7 @@ class QPLaw(AllocationLaw):
         T, flag = qp.solve(tau, lo, hi)
         if flag >= 0:  # sat = ((T <= lo + tol) | (T >= hi - tol)) & ~off, compiled (T is clipped already)
             sat = np.empty(len(T), dtype=bool)
-            alloc_kernel.qp_result(T, lo, hi, blk._off, _SAT_TOL, T, sat)
+            kernels.alloc.qp_result(T, lo, hi, blk._off, _SAT_TOL, T, sat)
             return T, sat, qp.iterations
         qp.cold_start()  # never keep a failed active set
         T, sat = blk.pseudo_inverse(tau, lo, hi)
@@ -613,7 +611,7 @@ class AllocatorBlock(Block):
             self._o_pos = np.array([starts[0], starts[1], starts[2], self._o_err, starts[3], self._o_energy])
         th = vessel.thrusters
         self._th = np.ascontiguousarray(np.vstack([th.k_forward, th.k_reverse, 1.0 / th.time_constant]))
-        self._thrust_law = thrust_law.code(th.law)
+        self._thrust_law = kernels.thrust_law.code(th.law)
         self._n_max = np.ascontiguousarray(th.n_max, dtype=float)
         self._B_c = np.ascontiguousarray(self.B)
         self._tau_idx = np.arange(len(self.inp), dtype=np.int64)[self._in_tau]
@@ -733,8 +731,8 @@ class AllocatorBlock(Block):
         if not self._any_rw:  # no weight to raise: one compiled call
             m = self._m
             T, Tc, sat = np.empty(m), np.empty(m), np.empty(m, dtype=bool)
-            alloc_kernel.pinv_clip(self._P, np.ascontiguousarray(tau, dtype=float), self._tau_fixed,
-                                   self._T_fixed, self._any_off, lo, hi, T, Tc, sat)
+            kernels.alloc.pinv_clip(self._P, np.ascontiguousarray(tau, dtype=float), self._tau_fixed,
+                                    self._T_fixed, self._any_off, lo, hi, T, Tc, sat)
             return Tc, sat
         if self._any_off:
             tau = tau - self._tau_fixed
@@ -767,10 +765,11 @@ class AllocatorBlock(Block):
             raise ValueError(f"allocator: expected {len(self.inp)} inputs, got {u.shape}")
         if self._fast_pinv:
             Tc = np.empty(self._m)
-            if alloc_kernel.pinv_step(np.ascontiguousarray(u), self._tau_idx, self._P, self._tau_fixed,
-                                      self._T_fixed, self._any_off, self._lo_fixed, self._hi_fixed, self._B_c,
-                                      self._th, self._thrust_law, self._n_max, self._off, self._camera_idx,
-                                      self._y, self._o_pos, self._o_front, self._o_iter, Tc):
+            if kernels.alloc.pinv_step(
+                    np.ascontiguousarray(u), self._tau_idx, self._P, self._tau_fixed, self._T_fixed,
+                    self._any_off, self._lo_fixed, self._hi_fixed, self._B_c, self._th, self._thrust_law,
+                    self._n_max, self._off, self._camera_idx, self._y, self._o_pos, self._o_front,
+                    self._o_iter, Tc):
                 self._T_prev = Tc
                 return self._y.copy()
             # a non-finite input: the general path below names it
@@ -782,9 +781,10 @@ class AllocatorBlock(Block):
         self._T_prev = T
         y = self._y
         if self._o_pos is not None:  # n, T, tau_alloc, alloc_error, sat, thrust_energy: one compiled call
-            alloc_kernel.outputs(np.ascontiguousarray(T, dtype=float), np.ascontiguousarray(tau, dtype=float),
-                                 self._B_c, self._th, self._thrust_law, self._n_max, self._off, self._any_off,
-                                 np.ascontiguousarray(sat), y, self._o_pos)
+            kernels.alloc.outputs(
+                np.ascontiguousarray(T, dtype=float), np.ascontiguousarray(tau, dtype=float), self._B_c,
+                self._th, self._thrust_law, self._n_max, self._off, self._any_off, np.ascontiguousarray(sat),
+                y, self._o_pos)
             y[self._o_front] = negative_front_thrust(T, self._camera) if self._camera else 0.0
             y[self._o_iter] = iterations
             return y.copy()

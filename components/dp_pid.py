@@ -36,13 +36,12 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from . import registry
+from . import kernels, registry
 from .allocation import FORCE_UNIT, thrust_capability
 from .block import Interface, Signal
 from .controller import ControllerBlock, restoring_stiffness
 from .dynamics import coriolis_force, rpsi, rzyx, tzyx_inv
 from .guidance import MAX_LINES, PathGuidance, lawnmower, parse_waypoints
-from .kernels import control as control_kernel
 from .vessel_spec import VesselSpec, state_unit
 
 # Default design data (Minerva 2's, docs/gnc.md); a vessel file's gnc.tuning overrides each.
@@ -381,10 +380,10 @@ class DPPidController(ControllerBlock):
             w2, two_zw = ref.rates()
             in_eta, in_nu, in_ref = self._k_in
             o_tau, o_eta_d = self._k_out
-            if control_kernel.dp_block_step(u, in_eta, in_nu, in_ref, h, ref.x, ref.v, ref.coefficients(h),
-                                            w2, two_zw, ref.angles, x, v, a, self.z, self.kp, self.kd,
-                                            self.ki, self._angle_mask, self.tau_max, self._z_max, seen, o_tau,
-                                            o_eta_d, y):
+            if kernels.control.dp_block_step(
+                    u, in_eta, in_nu, in_ref, h, ref.x, ref.v, ref.coefficients(h), w2, two_zw, ref.angles,
+                    x, v, a, self.z, self.kp, self.kd, self.ki, self._angle_mask, self.tau_max, self._z_max,
+                    seen, o_tau, o_eta_d, y):
                 ref.x, ref.v, ref.a = x, v, a
                 self._ref_seen = seen
                 if self.guidance is not None:
@@ -402,9 +401,9 @@ class DPPidController(ControllerBlock):
         ref, d = self.ref, self.dof
         x, v, a, tau = np.empty(d), np.empty(d), np.empty(d), np.empty(d)
         w2, two_zw = ref.rates()
-        control_kernel.dp_step(h, eta, nu, np.ascontiguousarray(eta_ref), ref.x, ref.v, ref.coefficients(h),
-                               w2, two_zw, ref.angles, x, v, a, self.z, self.kp, self.kd, self.ki,
-                               self._angle_mask, self.tau_max, self._z_max, tau)
+        kernels.control.dp_step(h, eta, nu, np.ascontiguousarray(eta_ref), ref.x, ref.v, ref.coefficients(h),
+                                w2, two_zw, ref.angles, x, v, a, self.z, self.kp, self.kd, self.ki,
+                                self._angle_mask, self.tau_max, self._z_max, tau)
         ref.x, ref.v, ref.a = x, v, a
         y = np.zeros(self._n_out)
         if self.guidance is not None:
@@ -437,7 +436,7 @@ class DPPidController(ControllerBlock):
         eta_d, eta_d_dot, eta_d_dd = self.ref.step(h, eta_ref)
         y = np.zeros(self._n_out)
         if mode == MODE_WAYPOINT or any_free:
-            control_kernel.eta_rate(eta, nu, Jm, eta_dot)
+            kernels.control.eta_rate(eta, nu, Jm, eta_dot)
             eta_d, eta_d_dot, eta_d_dd = eta_d.copy(), eta_d_dot.copy(), eta_d_dd.copy()
             if mode == MODE_WAYPOINT and self.guidance is not None:
                 g = self.guidance.step(h, eta[:2], float(eta_ref[self._yaw]))
@@ -453,8 +452,8 @@ class DPPidController(ControllerBlock):
         if self.guidance is not None and mode != MODE_WAYPOINT:
             y[self._o_corner] = self.guidance.corner_error
         # J, eta_dot = J nu, e = eta - eta_d (angles wrapped), tau = -J^T (Kp e + Kd edot + Ki z), compiled
-        control_kernel.pid_force(eta, nu, eta_d, eta_d_dot, self.z, self.kp, self.kd, self.ki,
-                                 self._angle_mask, Jm, eta_dot, e, tau_new)
+        kernels.control.pid_force(eta, nu, eta_d, eta_d_dot, self.z, self.kp, self.kd, self.ki,
+                                  self._angle_mask, Jm, eta_dot, e, tau_new)
         if mode == MODE_WAYPOINT and self._ff_gain > 0.0:
             tau_new += self._ff_gain * self._feedforward(eta, eta_d_dot, eta_d_dd)
         if any_free:
@@ -467,8 +466,8 @@ class DPPidController(ControllerBlock):
         # tau = clip(tau_unsat) and the conditional integration (ControllerBlock._integrate with
         # J^T = Jm.T), compiled; e = 0 on free DOFs: their integral is held
         tau = np.empty(d)
-        control_kernel.saturate_integrate(h, e, tau_unsat, self.tau_max, self.ki, self.z, self._z_max, Jm,
-                                          tau)
+        kernels.control.saturate_integrate(h, e, tau_unsat, self.tau_max, self.ki, self.z, self._z_max, Jm,
+                                           tau)
         self._ref_seen = u[self._in_ref].copy()
         y[self._o_tau] = tau
         y[self._o_eta_d] = eta_d

@@ -59,10 +59,10 @@ from typing import Any
 
 import numpy as np
 
+from . import kernels
 from .allocation import FORCE_UNIT
 from .block import Block, Interface, Signal
 from .dynamics import coriolis_tensor, restoring_coefficients, rzyx, wrap_angle
-from .kernels import ekf as ekf_kernel
 from .vessel_spec import ANGLE_NAMES, VesselSpec, state_unit
 
 PREDICT_DT_MAX = 0.05  # s: largest prediction sub-step
@@ -310,18 +310,18 @@ class ObserverBlock(Block):
         """
         A = self._A
         f = np.empty(self.n)
-        ekf_kernel.model(np.ascontiguousarray(x, dtype=float), np.ascontiguousarray(tau, dtype=float), self.d,
-                         self.nw, self._inv_tb, self.Minv, self._MinvG, self._MinvDL, self._MinvDQ,
-                         self._g6_arr, self._Aw, A, f)
+        kernels.ekf.model(np.ascontiguousarray(x, dtype=float), np.ascontiguousarray(tau, dtype=float),
+                          self.d, self.nw, self._inv_tb, self.Minv, self._MinvG, self._MinvDL, self._MinvDQ,
+                          self._g6_arr, self._Aw, A, f)
         return f, A
 
     # -- filter --------------------------------------------------------------------------------
     def predict(self, h: float, tau: np.ndarray) -> None:
         k = max(1, math.ceil(h / PREDICT_DT_MAX - 1e-9))
         # x and P in place
-        ekf_kernel.predict(self.x, self.P, np.ascontiguousarray(tau, dtype=float), k, h / k, self._Qc, self.d,
-                           self.nw, self._inv_tb, self.Minv, self._MinvG, self._MinvDL, self._MinvDQ,
-                           self._g6_arr, self._Aw, self._A, self._angle_arr)
+        kernels.ekf.predict(self.x, self.P, np.ascontiguousarray(tau, dtype=float), k, h / k, self._Qc,
+                            self.d, self.nw, self._inv_tb, self.Minv, self._MinvG, self._MinvDL, self._MinvDQ,
+                            self._g6_arr, self._Aw, self._A, self._angle_arr)
 
     def _update(self, z: np.ndarray, ch: _Channels) -> bool:
         """Measurement update with one sensor's channels; False if rejected by the gate."""
@@ -329,8 +329,8 @@ class ObserverBlock(Block):
             return self._first_fix(z, ch)
         if ch.wave and self.nw:
             return self._update_wave(z, ch)
-        ok, _ = ekf_kernel.update_measured(self.x, self.P, ch.idx, z, ch.angle, ch.var, self._r_scale,
-                                           self._threshold(ch, len(z)), self._angle_arr)  # x, P in place
+        ok, _ = kernels.ekf.update_measured(self.x, self.P, ch.idx, z, ch.angle, ch.var, self._r_scale,
+                                            self._threshold(ch, len(z)), self._angle_arr)  # x, P in place
         if not ok:
             return self._rejected(z, ch)
         if ch.pos_fix:
@@ -387,8 +387,8 @@ class ObserverBlock(Block):
         y = z - zhat
         if ch.has_angle:
             y[ch.angle] = (y[ch.angle] + math.pi) % (2.0 * math.pi) - math.pi
-        ok, _ = ekf_kernel.update_general(self.x, self.P, H, y, ch.var * self._r_scale,
-                                          self._threshold(ch, m), self._angle_arr)  # x, P in place
+        ok, _ = kernels.ekf.update_general(self.x, self.P, H, y, ch.var * self._r_scale,
+                                           self._threshold(ch, m), self._angle_arr)  # x, P in place
         if not ok:
             return self._rejected(z, ch)
         if ch.pos_fix:
@@ -498,7 +498,7 @@ class ObserverBlock(Block):
             u = self._checked(u)
         k = max(1, math.ceil(h / PREDICT_DT_MAX - 1e-9))
         y = self._y
-        res = ekf_kernel.step(
+        res = kernels.ekf.step(
             u, self.x, self.P, self._tau_idx, k, h / k, self._Qc, self.d, self.nw, self._inv_tb,
             self.Minv, self._MinvG, self._MinvDL, self._MinvDQ, self._g6_arr, self._Aw, self._A,
             self._angle_arr, self._sens, self._sens_var, self._thr, self._r_scale, self._last_count,
@@ -506,12 +506,12 @@ class ObserverBlock(Block):
         if res < 0:
             self._checked(u)  # raises, naming the input
         self._since_fix += h
-        if res & ekf_kernel.POS_ACCEPTED:
+        if res & kernels.ekf.POS_ACCEPTED:
             self._consecutive = 0
             self._since_fix = 0.0
         i = res >> 2
         if i < len(self._sensors):  # the kernel stopped at sensor i
-            if res & ekf_kernel.REJECTED:
+            if res & kernels.ekf.REJECTED:
                 meas, _, ch = self._sensors[i]
                 if self._rejected(u[meas].copy(), ch) and ch.pos_fix:
                     self._since_fix = 0.0

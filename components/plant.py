@@ -18,11 +18,11 @@ from typing import Any
 
 import numpy as np
 
+from . import kernels
 from .allocation import FORCE_UNIT
 from .block import Block, Interface, Signal
 from .dynamics import wrap_angle
 from .environment import GaussMarkovCurrent
-from .kernels import plant as plant_kernel
 from .sensors import SensorSuite, mag_heading_error
 from .vessel_model import VesselModel
 from .vessel_spec import VesselSpec, state_unit
@@ -270,7 +270,7 @@ class PlantBlock(Block):
         p = self._model.kernel_params
         f = self._waves.field
         s = self._sensors
-        res = plant_kernel.step(
+        res = kernels.plant.step(
             t, h, u, self._drive, self._x, max(1, math.ceil(h / self._substep - 1e-9)), vcn, vce, vcn1, vce1,
             p.K if self._K is None else self._K, p.MS, p.MAL, p.ML, p.g6, p.th, p.flags, p.angle_index,
             f.hs > 0.0, f.omega, f.k, f.phase, f.amp, f._acc_amp, f._cd, f._sd, self._waves.W, s.s_int,
@@ -278,7 +278,7 @@ class PlantBlock(Block):
         if res < 0:
             self._inputs(u)  # raises, naming the input
         self._t = t + h
-        if res & plant_kernel.REFILL:
+        if res & kernels.plant.REFILL:
             s.refill()
         return self._y.copy()
 

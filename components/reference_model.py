@@ -23,8 +23,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from . import kernels
 from .dynamics import wrap_angle
-from .kernels import control as control_kernel
 
 RK4_DT_MAX = 0.05  # s: largest RK4 sub-step when limits are active
 _TWO_PI = 2.0 * math.pi
@@ -135,8 +135,8 @@ class ReferenceModel:
             # the exact discrete step, compiled: e0 = x - x_ref (wrapped), [e, v] = Phi [e0, v],
             # x += e - e0 (wrapped), a = -w^2 e - 2 zeta w v
             x, v, a = np.empty(self.n), np.empty(self.n), np.empty(self.n)
-            control_kernel.reference_step(self.x, self.v, np.ascontiguousarray(x_ref, dtype=float),
-                                          self.coefficients(h), self._w2, self._2zw, self.angles, x, v, a)
+            kernels.control.reference_step(self.x, self.v, np.ascontiguousarray(x_ref, dtype=float),
+                                           self.coefficients(h), self._w2, self._2zw, self.angles, x, v, a)
             self.x, self.v, self.a = x, v, a
             return self.x, self.v, self.a
         e0 = self.error(np.asarray(x_ref, dtype=float))

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from .kernels import thrust_law
+from . import kernels
 from .vessel_spec import ThrusterSpec
 
 
@@ -42,28 +42,28 @@ def _by_element(f: Any, spec: ThrusterSpec, x: np.ndarray) -> np.ndarray:
     kf = np.ascontiguousarray(np.broadcast_to(np.asarray(spec.k_forward, float), shape)).ravel()
     kr = np.ascontiguousarray(np.broadcast_to(np.asarray(spec.k_reverse, float), shape)).ravel()
     out = np.empty(kf.shape[0])
-    f(np.ascontiguousarray(x).ravel(), kf, kr, thrust_law.code(spec.law), out)
+    f(np.ascontiguousarray(x).ravel(), kf, kr, kernels.thrust_law.code(spec.law), out)
     return out.reshape(shape)
 
 
 def speed_to_thrust(spec: ThrusterSpec, n: np.ndarray) -> np.ndarray:
     """The vessel's thrust law at shaft speeds n (``kernels/thrust_law.py``: the one definition)."""
-    return _by_element(thrust_law.thrusts, spec, n)
+    return _by_element(kernels.thrust_law.thrusts, spec, n)
 
 
 def thrust_to_speed(spec: ThrusterSpec, T: np.ndarray, clip: bool = True) -> np.ndarray:
     """Inverse law: the shaft speed that gives thrust T (clipped to +-n_max unless ``clip=False``)."""
-    n = _by_element(thrust_law.speeds, spec, T)
+    n = _by_element(kernels.thrust_law.speeds, spec, T)
     return np.clip(n, -spec.n_max, spec.n_max) if clip else n
 
 
 def max_thrust(spec: ThrusterSpec) -> tuple[np.ndarray, np.ndarray]:
     """(T_min, T_max) per thruster at -n_max and +n_max; T_min is negative (reverse coefficient).
 
-    From the law's Python form (``py_func``, the same arithmetic as the compiled one): a scenario's
-    validation asks for these limits, and the first compiled call in a process costs ~0.3 s of
-    numba's start-up, for a handful of multiplications."""
-    f, law = thrust_law.thrust_of.py_func, thrust_law.code(spec.law)
+    From the law's plain form (``kernels/laws.py``, what the kernels compile): a scenario's validation
+    asks for these limits, and importing numba and its first compiled call in a process cost
+    ~0.5 s, for a handful of multiplications."""
+    f, law = kernels.laws.thrust_of, kernels.laws.code(spec.law)
     n_max = spec.n_max.tolist()
     return (np.array([f(k, -n, law) for k, n in zip(spec.k_reverse.tolist(), n_max, strict=True)]),
             np.array([f(k, n, law) for k, n in zip(spec.k_forward.tolist(), n_max, strict=True)]))

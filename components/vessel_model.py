@@ -33,9 +33,9 @@ import math
 
 import numpy as np
 
+from . import kernels
 from .dynamics import J, gvect, m2c, restoring_coefficients, rzyx
 from .environment import current_body
-from .kernels import rigid_body, thrust_law
 from .thrusters import speed_to_thrust, thruster_matrix
 from .vessel_spec import ANGLE_NAMES, VesselSpec
 
@@ -70,7 +70,7 @@ class VesselModel:
         self._K = self._k_matrix(self.B)
         th = spec.thrusters
         self._n_max = th.n_max.tolist()
-        self._law = thrust_law.code(th.law)
+        self._law = kernels.thrust_law.code(th.law)
         if dof == 6:
             rs = spec.restoring
             if rs is None:
@@ -79,7 +79,7 @@ class VesselModel:
             self.r_g, self.r_b = np.asarray(rs.r_g, float), np.asarray(rs.r_b, float)
             self._g6 = restoring_coefficients(self.W, self.Bu, self.r_g, self.r_b)
         # the compiled kernels' packed parameters (contiguous float64), K the nominal one
-        self.kernel_params = rigid_body.rigid_body_params(
+        self.kernel_params = kernels.rigid_body.rigid_body_params(
             self.M_RB, self.M_A, self.D_L, self.D_Q, self.B, self._g6 if dof == 6 else None, th.k_forward,
             th.k_reverse, th.time_constant, self._law, self.coriolis, self.relative_inertia,
             self.angle_index)._replace(K=np.ascontiguousarray(self._K))
@@ -111,14 +111,15 @@ class VesselModel:
         p = self.kernel_params
         out = np.empty(self.n_states)
         ext = self._no_ext if tau_ext is None else np.asarray(tau_ext, dtype=float)
-        rigid_body.rhs(np.asarray(x, dtype=float), np.asarray(n_cmd, dtype=float), float(vc_north),
-                       float(vc_east), ext, tau_ext is not None, p.K if K is None else K, p.MS, p.MAL, p.ML,
-                       p.g6, p.th, p.flags, np.zeros(self.m + 3 * self.dof), out)
+        kernels.rigid_body.rhs(
+            np.asarray(x, dtype=float), np.asarray(n_cmd, dtype=float), float(vc_north), float(vc_east), ext,
+            tau_ext is not None, p.K if K is None else K, p.MS, p.MAL, p.ML, p.g6, p.th, p.flags,
+            np.zeros(self.m + 3 * self.dof), out)
         return out
 
     def thrust_into(self, n: np.ndarray, out: np.ndarray) -> None:
         """The thrust law at shaft speeds n (contiguous float64) into ``out``: one compiled call."""
-        rigid_body.thrust(n, self.kernel_params.th, self._law, out)
+        kernels.rigid_body.thrust(n, self.kernel_params.th, self._law, out)
 
     def clip(self, n_cmd: list[float] | np.ndarray) -> list[float]:
         """Speed commands limited to +-n_max, as the list ``rhs``/``rk4`` take."""
@@ -132,9 +133,10 @@ class VesselModel:
         p = self.kernel_params
         ext = self._no_ext if tau_ext is None else np.asarray(tau_ext, dtype=float)
         out = np.empty(self.n_states)
-        rigid_body.rk4(np.asarray(x, dtype=float), np.asarray(n_cmd, dtype=float), float(dt), int(steps),
-                       float(vc_north), float(vc_east), ext, tau_ext is not None, p.K if K is None else K,
-                       p.MS, p.MAL, p.ML, p.g6, p.th, p.flags, p.angle_index, out)
+        kernels.rigid_body.rk4(
+            np.asarray(x, dtype=float), np.asarray(n_cmd, dtype=float), float(dt), int(steps),
+            float(vc_north), float(vc_east), ext, tau_ext is not None, p.K if K is None else K, p.MS, p.MAL,
+            p.ML, p.g6, p.th, p.flags, p.angle_index, out)
         return out
 
     def horizontal_velocity(self, x: np.ndarray) -> tuple[float, float]:

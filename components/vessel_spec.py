@@ -319,7 +319,7 @@ def _parse(doc: dict, path: Path) -> VesselSpec:
 
     th = r.get(doc, "thrusters", "")
     law = r.get(th, "law", "thrusters")
-    if law not in K_UNITS:  # the laws of kernels/thrust_law.py (tests/test_kernels.py holds them equal)
+    if law not in K_UNITS:  # the laws of kernels/laws.py (tests/test_kernels.py holds them equal)
         raise r.fail("thrusters.law", f"must be {' or '.join(repr(k) for k in K_UNITS)}, got {law!r}")
     units = r.get(th, "units", "thrusters")
     if not isinstance(units, list) or not units:

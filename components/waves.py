@@ -42,7 +42,7 @@ import math
 
 import numpy as np
 
-from .kernels import waves as wave_kernel
+from . import kernels
 from .vessel_spec import VesselSpec
 
 G = 9.81  # m/s^2
@@ -116,8 +116,8 @@ class WaveField:
 
     def elevation(self, t: float, north: float = 0.0, east: float = 0.0) -> float:
         """Surface elevation (m, up) at time t above the horizontal position (north, east)."""
-        return wave_kernel.elevation(float(t), float(north), float(east), self.omega, self.k, self.phase,
-                                     self.amp, self._cd, self._sd)
+        return kernels.waves.elevation(float(t), float(north), float(east), self.omega, self.k, self.phase,
+                                       self.amp, self._cd, self._sd)
 
     def acceleration(self, t: float, north: float, east: float, down: float) -> tuple[float, float, float]:
         """Undisturbed water-particle acceleration in NED (m/s^2) at a point ``down`` below the surface."""
@@ -157,6 +157,6 @@ class WaveLoad:
         # a_b = R^T a_ned of the particle acceleration (``WaveField.acceleration``), then W a_b: compiled
         f = self.field
         out = np.empty(self.dof)
-        wave_kernel.force(float(t), np.ascontiguousarray(eta, dtype=float), self.dof, f.omega, f.k, f.phase,
-                          f._acc_amp, f._cd, f._sd, self.W, out)
+        kernels.waves.force(float(t), np.ascontiguousarray(eta, dtype=float), self.dof, f.omega, f.k, f.phase,
+                            f._acc_amp, f._cd, f._sd, self.W, out)
         return out.tolist()

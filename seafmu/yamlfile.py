@@ -14,10 +14,12 @@ file of a few lines expands to 10^9 values for every later pass over it).
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import yaml
-from pydantic import ValidationError
+
+if TYPE_CHECKING:  # only named here: the sweep reads its study file before pydantic is imported
+    from pydantic import ValidationError
 
 MAX_YAML_BYTES = 1_000_000  # a scenario or trial file is a few kB; 1 MB parses in under a second
 MAX_YAML_DEPTH = 64  # nesting of mappings and lists

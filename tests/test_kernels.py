@@ -877,6 +877,30 @@ def test_one_thrust_law_definition_for_every_caller() -> None:
         assert np.all(t_min < 0) and np.all(t_max > 0)
 
 
+
+def test_validation_does_not_import_numba() -> None:
+    """Validating a scenario reads the blocks' interfaces (thrust limits from the laws' plain form):
+    the kernel modules, and numba with them, are imported on first use only (a sweep validates
+    every case in a process that runs none), and every kernel module is reachable as
+    ``kernels.<name>``."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from seafmu.components import kernels
+
+    code = ("import sys\nfrom seafmu.scenario import load_scenario, scenario_path\n"
+            "for name in ('minerva2_dp', 'amv_osf_autopilot', 'supply_dp'):\n"
+            "    load_scenario(scenario_path(name))\n"
+            "print(sorted(m for m in sys.modules if m.split('.')[0] in ('numba', 'llvmlite')))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]", out.stdout[:300]
+    files = {f.stem for f in Path(kernels.__file__).parent.glob("*.py") if not f.stem.startswith("_")}
+    assert files == kernels.MODULES
+    assert kernels.thrust_law.thrust_of.py_func is kernels.laws.thrust_of  # compiled from the plain form
+    with pytest.raises(AttributeError, match="no attribute 'nope'"):
+        kernels.nope  # noqa: B018
+
 # -- the plant's whole step (kernels/plant.py) ---------------------------------------------------
 PLANT_CASES = (
     {},

@@ -2,45 +2,21 @@
 
 The plant's rigid-body kernel, the allocators' kernels and the NumPy helpers of
 ``components/thrusters.py`` (controllers, the hardware link, identification, the test plan) all
-call these two functions, so a new law is one ``elif`` in each of them and its name in ``LAWS``
-(plus its coefficient units in ``vessel_spec.K_UNITS``). A law is carried in the kernels' flags
-as its index in ``LAWS``.
+call these functions, compiled here from their plain forms in ``laws.py`` (a new law goes there).
 """
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
+from . import laws
 from ._jit import kernel
+from .laws import LAWS, code
 
-LAWS: tuple[str, ...] = ("linear", "quadratic")  # index = the code in the kernels' flags
+__all__ = ["LAWS", "code", "speed_of", "speeds", "thrust_of", "thrusts"]
 
-
-def code(law: str) -> int:
-    """The kernels' code of a thrust law name (ValueError naming the known ones)."""
-    try:
-        return LAWS.index(law)
-    except ValueError:
-        raise ValueError(f"unknown thrust law '{law}' (known: {', '.join(LAWS)})") from None
-
-
-@kernel
-def thrust_of(k: float, n: float, law: int) -> float:
-    """Thrust at shaft speed n with coefficient k (k_forward for n >= 0, else k_reverse)."""
-    if law == 1:
-        return k * n * abs(n)
-    return k * n
-
-
-@kernel
-def speed_of(k: float, t: float, law: int) -> float:
-    """Shaft speed giving thrust t with coefficient k (k_forward for t >= 0, else k_reverse)."""
-    if law == 1:
-        sg = 1.0 if t > 0.0 else (-1.0 if t < 0.0 else 0.0)
-        return sg * math.sqrt(abs(t) / k)
-    return t / k
+thrust_of = kernel(laws.thrust_of)
+speed_of = kernel(laws.speed_of)
 
 
 @kernel

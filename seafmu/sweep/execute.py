@@ -51,6 +51,7 @@ from seafmu.sweep.worker import PASS, run_case
 
 LOCK_FILE = ".seafmu-sweep.lock"
 ROWS = "cases"
+STOP_POLL_S = 0.1  # how soon a stop is seen while the cases run (s)
 SERIES = "timeseries"
 
 
@@ -314,6 +315,16 @@ class Outcome:
     close: Callable[[], None] = field(default=lambda: None)  # waits until the cluster is closed
 
 
+def _wait_for_a_case(ac: Any, timeout: float = STOP_POLL_S) -> None:
+    """Sleep until a case finishes (``as_completed`` notifies its condition after queueing the row,
+    so the queue is checked under it) or ``timeout`` passes, so that a stop (a flag set by the
+    signal handler) is seen within it. Where this loop polled every 10 ms instead, the sweep's
+    process took ~1 % of a core from the workers while the cases ran."""
+    with ac.thread_condition:
+        if ac.queue.empty():
+            ac.thread_condition.wait(timeout)
+
+
 def _task(study: Study, c: Case) -> dict[str, Any]:
     return {"case": c.index, "key": c.key, "seed": c.seed, "inputs": c.inputs, "overrides": c.overrides,
             "scenario": str(study.scenario_file), "resolved": study.scenarios.get(c.index),
@@ -358,15 +369,15 @@ def run_study(study: Study, folder: StudyFolder, workers: int | None = None, sch
 
             bar = tqdm(total=len(study.cases), initial=skipped, desc=study.name, unit="case", smoothing=0.1)
         # with_results: each row is fetched by the client's event loop as its case ends, so this loop
-        # never waits on a fetch (a stop is seen at once)
+        # never waits on a fetch
         ac = as_completed(list(futures), with_results=True)
         retired: set[str] = set()
         skipped_now = 0
         fails = sum(1 for r in rows.values() if r.get("status") != "pass")
         while not ac.is_empty() and not stop.requested:
             batch = ac.next_batch(block=False)
-            if not batch:  # polled, so a stop is seen at once; every 10 ms, the study's end waits for it
-                time.sleep(0.01)
+            if not batch:
+                _wait_for_a_case(ac)
                 continue
             for fut, result in batch:
                 c = futures[fut]
