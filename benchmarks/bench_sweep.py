@@ -23,10 +23,13 @@ Before timing, one ``seafmu run`` of the base scenario warms the FMU build, the 
 cache, Python's bytecode cache and the file cache, so neither worker count pays for them (a user's
 machine keeps them; ``PYTHONDONTWRITEBYTECODE``, set on some build hosts, is cleared for the
 commands timed); ``--repeat N`` alternates the order of the 1- and 2-worker sweeps N times and
-reports the median of each.
+reports the median of each, the best of each, and the median of the ratios of the back-to-back
+pairs (sweep k with 1 worker and sweep k with 2, run one right after the other: the host's speed,
+which drifts by 10-20 % over minutes on a shared machine, cancels within a pair but not between the
+medians of sweeps minutes apart).
 
     python benchmarks/bench_sweep.py [--cases 40] [--scenario minerva2_dp | --study NAME]
-                                     [--duration S] [--repeat 1] [--no-sequential]
+                                     [--duration S] [--repeat 3] [--no-sequential]
 """
 
 from __future__ import annotations
@@ -129,7 +132,7 @@ def main() -> None:
     what.add_argument("--scenario", default="minerva2_dp", help="--cases seeds over this scenario (default)")
     what.add_argument("--study", help="instead: a shipped study, its first --cases cases")
     ap.add_argument("--duration", type=float, default=None, help="shorten the scenario (s)")
-    ap.add_argument("--repeat", type=int, default=1,
+    ap.add_argument("--repeat", type=int, default=3,
                     help="1- and 2-worker sweeps, alternated, this many times")
     ap.add_argument("--no-sequential", action="store_true", help="skip the sequential seafmu run processes")
     args = ap.parse_args()
@@ -182,6 +185,9 @@ def main() -> None:
         if args.repeat > 1:
             print(f"  best of {args.repeat} each (least disturbed by other load): {b1 / b2:5.2f}x "
                   f"({b1:.1f} s / {b2:.1f} s)")
+            pairs = [runs[1][k][0] / runs[2][k][0] for k in range(args.repeat)]
+            print(f"  per back-to-back pair (the host's speed drifts by 10-20 % over minutes; a pair shares "
+                  f"it): median {statistics.median(pairs):5.2f}x ({', '.join(f'{r:.2f}' for r in pairs)})")
         print(f"  breakdown: cases {s1:.1f} s on 1 worker, {s2:.1f} s on 2 (speed-up over the cases alone "
               f"{s1 / s2:.2f}x); fixed cost (start-up, validation, cluster, cases.parquet, report, close) "
               f"{w1 - s1:.1f} s on 1 worker, {w2 - s2:.1f} s on 2")
