@@ -1,4 +1,5 @@
-"""Maneuver-level diagnosis: a current or a constant force hidden in a plant-made maneuver log.
+"""Maneuver-level diagnosis: a current, a constant force, a wrong coupling or added mass hidden in a
+plant-made maneuver log.
 
 The logs are made by PlantBlock (simulate_maneuver: multisine excitation through the thrusters)
 with the effect in the plant's environment or vessel, plus the vessel file's sensor noise; the
@@ -112,6 +113,32 @@ def test_a_missing_linear_sway_yaw_coupling_is_measured(tmp_path: Path) -> None:
     assert ci["Y_r"][0] < -15.0 < ci["Y_r"][1] and ci["N_v"][0] < -8.0 < ci["N_v"][1], ci
     assert d.to_json()["gain"]["validation_nrmse_ratio"] > 2.0
 
+
+
+@pytest.mark.parametrize("axis,i,water", [("X", 0, 25.0), ("Y", 1, 100.0), ("N", 2, 40.0)])
+def test_a_wrong_added_mass_in_the_vessel_file_is_named_measured_and_written_back(
+        tmp_path: Path, axis: str, i: int, water: float) -> None:
+    """The AMV's added mass on one axis differs between the water and the vessel file (surge 25 kg
+    against 10, sway 100 against 51.4, yaw 40 kg·m² against 20.7): before the maneuver-level
+    extension a damping coupling or a steady force was named. Now ``added_mass``, the correction
+    inside its 95 % interval on that axis and none on the others; the written vessel file carries
+    the water's value."""
+    amv = load_vessel("amv_osf")
+    MA = np.array(amv.M_A, dtype=float)
+    MA[i, i] = water
+    trial = _trial(tmp_path, dataclasses.replace(amv, M_A=MA), "amv_osf", 0, 200.0, 0.1)
+    d = diagnose(trial)
+    assert d.effect == "added_mass", d.evidence
+    ci = d.extended.ci95
+    true = water - float(amv.M_A[i, i])
+    assert ci[f"m_a[{axis}]"][0] < true < ci[f"m_a[{axis}]"][1], ci
+    others = [a for a in ("X", "Y", "N") if a != axis]
+    assert all(abs(d.extended.params[f"m_a[{a}]"]) < 0.1 * abs(true) for a in others), d.extended.params
+    assert f"{axis}: " in d.evidence and "added mass is off" in d.evidence
+    assert d.to_json()["gain"]["validation_nrmse_ratio"] > 1.2
+    updates, prov = updates_from_fit(d.extended, amv)
+    assert updates[f"added_mass[{i}][{i}]"] == pytest.approx(water, rel=0.1)
+    assert prov[f"added_mass[{i}][{i}]"].startswith("95 % CI [")
 
 def _sway_yaw_log(trial: Trial) -> tuple[np.ndarray, np.ndarray]:
     """The logged sway speed and yaw rate of a 3-DOF maneuver trial."""

@@ -274,7 +274,24 @@ def updates_from_fit(fit: FitResult, vessel: VesselSpec, entries: str = "diagona
             updates[key] = val - shift
             prov[key] = f"95 % CI [{lo - shift:.6g}, {hi - shift:.6g}]"
     _sway_yaw_coupling(fit, vessel, updates, prov)
+    _added_mass(fit, vessel, updates, prov)
     return updates, prov
+
+
+def _added_mass(fit: FitResult, vessel: VesselSpec, updates: dict[str, float], prov: dict[str, str]) -> None:
+    """A fitted added-mass correction (``effects.added_mass``: m_a[X], ... beyond the vessel file's)
+    as the file's M_A diagonal: the file's plus the correction (its CI shifted likewise)."""
+    from seafmu.components.vessel_spec import TAU_NAMES
+
+    for i, axis in enumerate(TAU_NAMES[vessel.dof]):
+        param = f"m_a[{axis}]"
+        if param not in fit.params:
+            continue
+        now = float(np.asarray(vessel.M_A)[i, i])
+        lo, hi = fit.ci95.get(param, (float("nan"), float("nan")))
+        key = f"{FIELD_ALIASES['M_A']}[{i}][{i}]"
+        updates[key] = now + fit.params[param]
+        prov[key] = f"95 % CI [{now + lo:.6g}, {now + hi:.6g}]"
 
 
 def _sway_yaw_coupling(fit: FitResult, vessel: VesselSpec, updates: dict[str, float],

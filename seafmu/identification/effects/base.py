@@ -84,7 +84,8 @@ class CatalogueEffect(ABC):
     - ``maneuver_scales(tau, nu)``: one optimiser scale per parameter, from the logged forces and
       velocities (n, d each; ``nu`` may be None);
     - ``maneuver_terms(P)``: the simulator's keyword arguments (``F0`` a force added to tau,
-      ``vc`` a NED current, ``thrust_gain`` per thruster, ``sway_yaw`` coupling derivatives;
+      ``vc`` a NED current, ``thrust_gain`` per thruster, ``sway_yaw`` coupling derivatives,
+      ``added_mass`` on M's diagonal;
       ``maneuver.simulation._Simulator.run``) from the parameter values
       P (K, n_params) of K parameter sets;
     - ``maneuver_evidence(params)``: the finding in words, from the fitted parameters.
@@ -295,6 +296,16 @@ class Combined(CatalogueEffect):
         return "; ".join(p.maneuver_evidence({q: params[q] for q in p.maneuver_params(self._d)
                                               if q in params}) for p in self.parts)
 
+
+def vessel_dof(trial: Trial) -> int | None:
+    """The DOF count of the trial's vessel file, None where it names none or the file does not read
+    (the fit itself then reports that)."""
+    from seafmu.components.vessel_spec import VesselFileError, load_vessel
+
+    try:
+        return load_vessel(trial.vessel).dof if trial.vessel else None
+    except (VesselFileError, OSError, ValueError):
+        return None
 
 def fmt(x: float) -> str:
     """A number in a finding's sentence."""

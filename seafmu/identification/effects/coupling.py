@@ -14,7 +14,15 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
-from seafmu.identification.effects.base import CatalogueEffect, Hiding, fmt, register, replace_matrix, unit
+from seafmu.identification.effects.base import (
+    CatalogueEffect,
+    Hiding,
+    fmt,
+    register,
+    replace_matrix,
+    unit,
+    vessel_dof,
+)
 
 if TYPE_CHECKING:
     from seafmu.identification.trial import Trial
@@ -66,13 +74,8 @@ class Coupling(CatalogueEffect):
         with a current and lost thrusters the four derivatives took over what those explain
         (N_|v|v = 696, Y_r = -73 +- 675 beside a lost thruster instead of the current), and no test
         of physical sense (a dissipative sway-yaw block) is made yet to reject such a fit."""
-        from seafmu.components.vessel_spec import VesselFileError, load_vessel
-
-        try:
-            dof = load_vessel(trial.vessel).dof if trial.vessel else None
-        except (VesselFileError, OSError, ValueError):
-            dof = None
-        return None if dof == 3 else "the maneuver-level sway-yaw coupling is fitted to 3-DOF models only"
+        return (None if vessel_dof(trial) == 3
+                else "the maneuver-level sway-yaw coupling is fitted to 3-DOF models only")
 
     def maneuver_params(self, d: int) -> list[str]:
         """Y_r, N_v and their quadratic forms Y_|r|r, N_|v|v, beyond the vessel file's."""

@@ -39,11 +39,12 @@ class _Simulator:
     from the measured (smoothed) state, so a fit is not dominated by drift from one start.
     Same equations as ``VesselModel.derivative`` without current (checked by a test).
 
-    Diagnosis extensions (``run(..., F0=, vc=, thrust_gain=, sway_yaw=)``): sway-yaw damping
-    coupling added to D_L and D_Q, a thruster's gain, a constant generalised force F0 added to tau,
-    and a constant NED current vc = (north, east): damping and the added-mass Coriolis terms then
-    act on nu_r = nu - R^T [vc; 0] as in the plant (C_RB(nu) nu + C_A(nu_r) nu_r), with R from the
-    simulated roll/pitch and the *measured* heading (``psi``, set by ``_sim_setup``).
+    Diagnosis extensions (``run(..., F0=, vc=, thrust_gain=, sway_yaw=, added_mass=)``): sway-yaw
+    damping coupling added to D_L and D_Q, added mass on M's diagonal, a thruster's gain, a
+    constant generalised force F0 added to tau, and a constant NED current vc = (north, east):
+    damping and the added-mass Coriolis terms then act on nu_r = nu - R^T [vc; 0] as in the plant
+    (C_RB(nu) nu + C_A(nu_r) nu_r), with R from the simulated roll/pitch and the *measured* heading
+    (``psi``, set by ``_sim_setup``).
 
     The RK4 loop is compiled (``components/kernels/maneuver.py``: one loop over parameter sets,
     segments and steps instead of L steps of NumPy calls on (K, S, ...) arrays).
@@ -81,14 +82,20 @@ class _Simulator:
 
     def run(self, M: np.ndarray, DL: np.ndarray, DQ: np.ndarray, x0: np.ndarray | None = None,
             F0: np.ndarray | None = None, vc: np.ndarray | None = None,
-            thrust_gain: np.ndarray | None = None, sway_yaw: np.ndarray | None = None) -> np.ndarray:
+            thrust_gain: np.ndarray | None = None, sway_yaw: np.ndarray | None = None,
+            added_mass: np.ndarray | None = None) -> np.ndarray:
         """Simulated states (K, S, L+1, nx) for K parameter sets (M, DL, DQ each (K, d, d));
         ``x0`` (K, S, nx) replaces the measured segment starts; ``F0`` (K, d) constant force,
         ``vc`` (K, 2) NED current (see the class docstring); ``thrust_gain`` (K, m) the fraction
         of each thruster's thrust that acts (needs ``thrust``, set by ``_sim_setup``); ``sway_yaw``
         (K, 4) sway-yaw hydrodynamic derivatives Y_r, N_v, Y_|r|r, N_|v|v added to the model's
-        (``effects.coupling.SWAY_YAW``: they enter DL and DQ with the sign changed)."""
+        (``effects.coupling.SWAY_YAW``: they enter DL and DQ with the sign changed); ``added_mass``
+        (K, d) added to M's diagonal (the added mass, so also to C_A's)."""
         K = M.shape[0]
+        if added_mass is not None:
+            M = np.array(M, dtype=float)
+            ii = np.arange(M.shape[-1])
+            M[:, ii, ii] += np.asarray(added_mass, dtype=float)
         if sway_yaw is not None:
             P = np.asarray(sway_yaw, dtype=float)
             mats = {"D_L": np.array(DL, dtype=float), "D_Q": np.array(DQ, dtype=float)}
