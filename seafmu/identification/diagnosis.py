@@ -241,9 +241,10 @@ def fit_baseline(trial: Trial, diagnosis: bool = False) -> FitResult:
 
 
 def fit_extension(trial: Trial, base: FitResult, effect: str | tuple[str, ...],
-                  seeds: list[Any] | None = None) -> FitResult:
+                  seeds: list[Any] | None = None, noise_null: bool = True) -> FitResult:
     """The baseline extended by one effect, or by several at once (started from ``seeds``: e.g. the
-    single-effect fits' values)."""
+    single-effect fits' values). ``noise_null=False`` (a diagnosis's candidates): a maneuver fit's
+    whiteness against the sensor noise alone is left for ``complete_whiteness``."""
     names = (effect,) if isinstance(effect, str) else tuple(effect)
     if trial.kind == "static":
         model = static.combined(trial, base, names)
@@ -251,7 +252,8 @@ def fit_extension(trial: Trial, base: FitResult, effect: str | tuple[str, ...],
         return static.fit_static(trial, model, start=start)
     if trial.kind == "maneuver":  # refit from the baseline's damping with the effect's parameters
         if len(names) == 1:
-            return fit_maneuver(trial, "output_error", effect=names[0], start=dict(base.params))
+            return fit_maneuver(trial, "output_error", effect=names[0], start=dict(base.params),
+                                noise_null=noise_null)
         objs = [effect_objects.get(n) for n in names]
         located = [n for n, o in zip(names, objs, strict=True) if o is None or not o.maneuver
                    or getattr(o, "maneuver_variants", None) is not None]
@@ -262,21 +264,22 @@ def fit_extension(trial: Trial, base: FitResult, effect: str | tuple[str, ...],
         for seed in seeds or []:  # the parts' fitted values, where given
             start.update(seed if isinstance(seed, dict) else {})
         d = maneuver_problem(trial).vessel.dof
-        return fit_maneuver(trial, "output_error", effect=Combined(objs, d), start=start)
+        return fit_maneuver(trial, "output_error", effect=Combined(objs, d), start=start,
+                            noise_null=noise_null)
     if len(names) == 1:
         return timeseries.fit_effect(trial, base, names[0])
     return timeseries.fit_effects(trial, base, names, seeds=seeds)
 
 
 def fit_maneuver(trial: Trial, method: str, effect: str | Any | None = None,
-                 start: dict[str, float] | None = None) -> FitResult:
+                 start: dict[str, float] | None = None, noise_null: bool = True) -> FitResult:
     """Multi-DOF maneuver log: delegated to the maneuver module (Minerva 2 LS or output error).
     ``effect``: a maneuver effect's name, or an effect object (a located variant, a combination).
     Inside ``identify``/``diagnose`` the log is read and prepared (LS start, simulation setups)
     once for all fits (``_prepared_logs``)."""
     from seafmu.identification.maneuver.fit import fit_prepared
 
-    return fit_prepared(maneuver_problem(trial), method, effect=effect, oe_start=start)
+    return fit_prepared(maneuver_problem(trial), method, effect=effect, oe_start=start, noise_null=noise_null)
 
 
 def maneuver_problem(trial: Trial) -> Any:
@@ -412,7 +415,7 @@ def _diagnose(trial: Trial, effects: list[str] | None, rule: Rule, combinations:
             continue
         t1 = time.perf_counter()
         try:
-            fit = fit_extension(trial, base, name)
+            fit = fit_extension(trial, base, name, noise_null=False)
         except (ValueError, np.linalg.LinAlgError, FloatingPointError) as exc:
             cands.append(Candidate(name, None, reason=f"fit failed: {exc}", seconds=time.perf_counter() - t1))
             continue
@@ -423,6 +426,10 @@ def _diagnose(trial: Trial, effects: list[str] | None, rule: Rule, combinations:
     if combinations:
         cands += search_combinations(trial, base, cands, rule, t0)
     cause = choose(cands, rule)
+    if cause is not None and cause.fit is not None:  # its residual tested as the baseline's was
+        from seafmu.identification.maneuver.fit import complete_whiteness
+
+        complete_whiteness(cause.fit)
     alts = alternatives(trial, cause, cands)
     evidence = explain(trial, base, cands, cause, skipped, alts)
     return Diagnosis(trial, base, cands, skipped, cause, evidence, rule, time.perf_counter() - t0, alts)
@@ -798,7 +805,7 @@ def _fit_members(trial: Trial, base: FitResult, objs: tuple[Any, ...], start: di
     t1 = time.perf_counter()
     try:
         fit = fit_prepared(maneuver_problem(trial), "output_error", max_nfev=max_nfev, oe_start=start,
-                           effect=objs[0] if len(objs) == 1 else Combined(objs, d))
+                           effect=objs[0] if len(objs) == 1 else Combined(objs, d), noise_null=False)
     except (TrialError, ValueError, np.linalg.LinAlgError, FloatingPointError) as exc:
         return Candidate(name, None, reason=f"fit failed: {exc}", seconds=time.perf_counter() - t1,
                          effects=tuple(o.name for o in objs), groups=groups)
@@ -939,7 +946,7 @@ def _fit_combination(trial: Trial, base: FitResult, parts: tuple[Candidate, ...]
         seeds = [s[0] if isinstance(s, tuple) else s for s in seeds]
     t1 = time.perf_counter()
     try:
-        fit = fit_extension(trial, base, names, seeds=seeds)
+        fit = fit_extension(trial, base, names, seeds=seeds, noise_null=False)
     except (ValueError, np.linalg.LinAlgError, FloatingPointError) as exc:
         return Candidate(name, None, reason=f"fit failed: {exc}", seconds=time.perf_counter() - t1,
                          effects=names)
