@@ -379,6 +379,9 @@ class HardwareLink:
     def initialize(self, values: np.ndarray) -> np.ndarray:
         """Open the ports and wait for a first complete sample of every sensor."""
         p = self.profile
+        # the recorder's thrust law once now: its first call imports numba and loads the compiled
+        # kernel (~0.3 s), which inside the loop would hold a step past the drives' command timeout
+        speed_to_thrust(self.spec.thrusters, np.zeros(len(self._u)))
         self.open()
         self.set_inputs(values)
         t_end = time.perf_counter() + p.startup_timeout
