@@ -136,6 +136,23 @@ def test_lost_thruster_in_a_current(tmp_path: Path, vessel: str, seed: int, dura
     assert towards == pytest.approx(math.degrees(direction), abs=DIRECTION_TOL)
 
 
+
+def test_a_steady_force_standing_in_for_a_lost_thruster_is_swapped_out(tmp_path: Path) -> None:
+    """AMV, 500 s at 20 Hz (``bench_maneuver_pairs.py``'s case): thruster 1 at 60 % in a 0.1 m/s
+    current. The pair search accepts current + steady force; grown by the lost thruster, the force
+    loses its significance, and the combination without it, the truth, is fitted and chosen (it
+    was never fitted before: the answer was current + steady force)."""
+    speed, direction = 0.1, 0.8
+    d = diagnose(_log(tmp_path, "amv_osf", 28, {"thruster_efficiency_1": 0.6, "current_speed": speed,
+                                                 "current_direction": direction}, 499.95, 0.05))
+    _check_pair(d, ["current", "thruster_loss"])
+    assert _lost(d) == {1: pytest.approx(0.6, abs=ETA_TOL)}
+    p = d.cause.fit.params  # type: ignore[union-attr]
+    assert p["v_c_north"] == pytest.approx(speed * math.cos(direction), abs=CURRENT_TOL)
+    assert p["v_c_east"] == pytest.approx(speed * math.sin(direction), abs=CURRENT_TOL)
+    grown = next(c for c in d.candidates if c.size == 3)
+    assert not grown.accepted and "constant_force: parameter not significant" in grown.reason
+
 @pytest.mark.parametrize(("seed", "other"), [(6, "thruster_loss"), (13, "current")])
 def test_buoyancy_error_with_a_lost_thruster_or_a_current(tmp_path: Path, seed: int, other: str) -> None:
     """Minerva 2 with 100 N more buoyancy than its file says (a constant heave force, upwards: z
