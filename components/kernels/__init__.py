@@ -13,10 +13,10 @@ FMUs first stepped in parallel threads (an FMI host's) load a module once.
 from __future__ import annotations
 
 import importlib
+import pkgutil
 from types import ModuleType
 
-MODULES = frozenset({"alloc", "control", "ekf", "laws", "maneuver", "plant", "rigid_body", "thrust_law",
-                     "waves"})
+MODULES = frozenset(m.name for m in pkgutil.iter_modules(__path__) if not m.name.startswith("_"))
 
 
 def __getattr__(name: str) -> ModuleType:

@@ -770,10 +770,12 @@ def _grow(trial: Trial, base: FitResult, cand: Candidate, idx: tuple[int, ...], 
     dropped = {q for o in objs for q in o.maneuver_params(d)} - own
     start = {q: v for q, v in bigger.fit.params.items() if q not in dropped}
     swapped = _fit_members(trial, base, kept, start, rule, noise)
-    if not swapped.accepted:
-        return [bigger, swapped], best.members
-    new = [swapped, bigger, *_against_parts(trial, base, swapped, kept, [*fitted, bigger], rule, noise)]
-    return (new, keep) if swapped.accepted else ([bigger, swapped, *new[2:]], best.members)
+    parts = []
+    if swapped.accepted:
+        parts = _against_parts(trial, base, swapped, kept, [*fitted, bigger], rule, noise)
+    if swapped.accepted:  # still, after its parts: the combination grows from it
+        return [swapped, bigger, *parts], keep
+    return [bigger, swapped, *parts], best.members
 
 
 def _explained_away_member(c: Candidate, idx: tuple[int, ...],

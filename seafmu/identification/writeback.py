@@ -273,41 +273,29 @@ def updates_from_fit(fit: FitResult, vessel: VesselSpec, entries: str = "diagona
             key = f"{field}[{a}][{b}]"
             updates[key] = val - shift
             prov[key] = f"95 % CI [{lo - shift:.6g}, {hi - shift:.6g}]"
-    _sway_yaw_coupling(fit, vessel, updates, prov)
-    _added_mass(fit, vessel, updates, prov)
+    _extension_entries(fit, vessel, updates, prov)
     return updates, prov
 
 
-def _added_mass(fit: FitResult, vessel: VesselSpec, updates: dict[str, float], prov: dict[str, str]) -> None:
-    """A fitted added-mass correction (``effects.added_mass``: m_a[X], ... beyond the vessel file's)
-    as the file's M_A diagonal: the file's plus the correction (its CI shifted likewise)."""
+def _extension_entries(fit: FitResult, vessel: VesselSpec, updates: dict[str, float],
+                       prov: dict[str, str]) -> None:
+    """A maneuver extension's fitted corrections beyond the vessel file's as the file's entries,
+    written whatever ``entries`` says (the extension fits exactly these entries, unlike an LS
+    off-diagonal): a sway-yaw coupling (``effects.coupling``) enters D_L/D_Q with the sign changed
+    (D = -[derivatives]: the file's minus the derivative, its CI mirrored), an added-mass correction
+    (``effects.added_mass``: m_a[X], ...) is added to the file's M_A diagonal (its CI shifted)."""
     from seafmu.components.vessel_spec import TAU_NAMES
 
-    for i, axis in enumerate(TAU_NAMES[vessel.dof]):
-        param = f"m_a[{axis}]"
-        if param not in fit.params:
-            continue
-        now = float(np.asarray(vessel.M_A)[i, i])
-        lo, hi = fit.ci95.get(param, (float("nan"), float("nan")))
-        key = f"{FIELD_ALIASES['M_A']}[{i}][{i}]"
-        updates[key] = now + fit.params[param]
-        prov[key] = f"95 % CI [{now + lo:.6g}, {now + hi:.6g}]"
-
-
-def _sway_yaw_coupling(fit: FitResult, vessel: VesselSpec, updates: dict[str, float],
-                       prov: dict[str, str]) -> None:
-    """A fitted sway-yaw coupling (derivatives beyond the vessel file's, ``effects.coupling``) as the
-    file's entries: D = -[derivatives], so each entry is the file's minus the derivative (its CI
-    mirrored). Written whatever ``entries`` says: the extension fits exactly these entries, unlike
-    an LS off-diagonal."""
-    for param, matrix, a, b in sway_yaw_entries(vessel.dof):
+    entries = [(param, matrix, a, b, -1.0) for param, matrix, a, b in sway_yaw_entries(vessel.dof)]
+    entries += [(f"m_a[{axis}]", "M_A", i, i, 1.0) for i, axis in enumerate(TAU_NAMES[vessel.dof])]
+    for param, matrix, a, b, sign in entries:
         if param not in fit.params:
             continue
         now = float(np.asarray(getattr(vessel, matrix))[a, b])
-        lo, hi = fit.ci95.get(param, (float("nan"), float("nan")))
+        lo, hi = sorted(now + sign * x for x in fit.ci95.get(param, (float("nan"), float("nan"))))
         key = f"{FIELD_ALIASES[matrix]}[{a}][{b}]"
-        updates[key] = now - fit.params[param]
-        prov[key] = f"95 % CI [{now - hi:.6g}, {now - lo:.6g}]"
+        updates[key] = now + sign * fit.params[param]
+        prov[key] = f"95 % CI [{lo:.6g}, {hi:.6g}]"
 
 
 def _clamp_negative_damping(updates: dict[str, float]) -> list[str]:

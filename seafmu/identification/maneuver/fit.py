@@ -193,10 +193,10 @@ def fit_prepared(problem: ManeuverProblem, method: str = "ls", *, oe_added_mass:
         fit_setup, problem.val_setup, M, D_L, D_Q, eff, extras, warnings)
     rss = float(np.sum(res_ok**2))
     aic, bic = fitting.aic_bic(rss, res_ok.size, len(names))
-    white = whiteness(fit_setup, M, D_L, D_Q, eff, prep, res_ok, nu_names,
-                      replicates=NOISE_REPLICATES if noise_null else 0)
+    test = functools.partial(whiteness, fit_setup, M, D_L, D_Q, eff, prep, res_ok, nu_names)
+    white = test(replicates=NOISE_REPLICATES if noise_null else 0)
     if not noise_null:
-        extras[_PENDING] = functools.partial(whiteness, fit_setup, M, D_L, D_Q, eff, prep, res_ok, nu_names)
+        extras[_PENDING] = test
 
     warnings += _sanity(M, D_L, D_Q, problem.plant["M_RB"], ci, nu_rms, nu_names, fitted)
     nonid = fitting.nonidentifiable_pairs(names, corr)

@@ -157,9 +157,9 @@ class _SimSetup:
     mask: np.ndarray  # (S, L+1) samples that exist and are compared (not the start)
     scale: np.ndarray  # (d,) spread of measured nu, normalises residuals per DOF
     t: np.ndarray | None = None  # (n_grid,) times of the simulation grid (for plots)
-    # Ljung-Box Q of the noise-only residuals by lag count (``statistics.whiteness``): the first fit
-    # on this setup simulates them, later fits (an extension of the same log) reuse them
-    noise_q: dict[int, np.ndarray] = field(default_factory=dict)
+    # Ljung-Box Q of the noise-only residuals by (lags, replicates, seed) (``statistics.whiteness``):
+    # the first fit on this setup simulates them, later fits (an extension of the same log) reuse them
+    noise_q: dict[tuple[int, int, int], np.ndarray] = field(default_factory=dict)
 
 
 def _sim_setup(vessel: VesselSpec, prep: _Prepared, i0: int, i1: int, segment: float, sim_dt: float,

@@ -72,9 +72,10 @@ def whiteness(setup: _SimSetup, M: np.ndarray, DL: np.ndarray, DQ: np.ndarray,
     d = len(names)
     k = plain["lags"]
     q_real, _ = fitting.ljung_box_q(residual, k)
-    q_null = setup.noise_q.get(k)
-    if q_null is None or q_null.shape[0] < replicates * 0.9:
-        q_null = setup.noise_q[k] = _noise_only_q(setup, M, DL, DQ, effect, prep, d, k, replicates, seed)
+    key = (k, replicates, seed)
+    if key not in setup.noise_q:
+        setup.noise_q[key] = _noise_only_q(setup, M, DL, DQ, effect, prep, d, k, replicates, seed)
+    q_null = setup.noise_q[key]
     p = (1 + np.sum(q_null >= q_real[None], axis=0)) / (1 + q_null.shape[0])
     for j, n in enumerate(names):
         plain["per_dof"][n]["noise_only_p"] = float(p[j])
