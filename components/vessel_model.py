@@ -9,6 +9,8 @@ drops both Coriolis terms (linear low-speed DP models such as the offshore suppl
 ``current_inertia: relative`` makes the inertia act on the relative acceleration, M nu_r_dot
 (Fossen's DP model M nu_r_dot + D nu_r = tau): with a current constant in NED,
 nu_c_dot = -omega x nu_c in the body, so M nu_dot gets the extra force -M [omega x nu_c1; 0].
+``current_inertia: added``: only the added mass does, M_RB nu_dot + M_A nu_r_dot (Fossen 2021's
+model of a hull in an irrotational current), so the extra force is -M_A [omega x nu_c1; 0].
 ``restoring`` is only read for 6 DOF.
 
 The state integrated by RK4 is x = [eta, nu, n] (2 dof + m values): the shaft lag lives in the
@@ -64,7 +66,8 @@ class VesselModel:
         self.B = thruster_matrix(spec.thrusters, dof)
         self.angle_index = [i for i, name in enumerate(spec.eta_names) if name in ANGLE_NAMES]
         self.coriolis = spec.coriolis != "none"
-        self.relative_inertia = spec.current_inertia == "relative"
+        # the matrix the current's rotation term acts through (None: M nu_dot, the default)
+        self.current_inertia = {"absolute": None, "relative": self.M, "added": self.M_A}[spec.current_inertia]
 
         # nu_dot = K @ [T, C+g, nu_r, |nu_r| nu_r]
         self._K = self._k_matrix(self.B)
@@ -81,7 +84,7 @@ class VesselModel:
         # the compiled kernels' packed parameters (contiguous float64), K the nominal one
         self.kernel_params = kernels.rigid_body.rigid_body_params(
             self.M_RB, self.M_A, self.D_L, self.D_Q, self.B, self._g6 if dof == 6 else None, th.k_forward,
-            th.k_reverse, th.time_constant, self._law, self.coriolis, self.relative_inertia,
+            th.k_reverse, th.time_constant, self._law, self.coriolis, spec.current_inertia,
             self.angle_index)._replace(K=np.ascontiguousarray(self._K))
         self._no_ext = np.zeros(dof)
 
@@ -183,11 +186,11 @@ class VesselModel:
         eta, nu = np.asarray(eta, float), np.asarray(nu, float)
         nu_r = nu - (np.zeros(self.dof) if nu_c is None else np.asarray(nu_c, float))
         cor = m2c(self.M_RB, nu) @ nu + m2c(self.M_A, nu_r) @ nu_r if self.coriolis else 0.0
-        if self.relative_inertia and nu_c is not None:  # M nu_r_dot: + M [omega x nu_c1; 0]
+        if self.current_inertia is not None and nu_c is not None:  # + M (or M_A) [omega x nu_c1; 0]
             k = 3 if self.dof == 6 else 2
             w = np.asarray(nu, float)[3:] if self.dof == 6 else np.array([0.0, 0.0, nu[2]])
             wxc = np.cross(w, np.append(np.asarray(nu_c, float)[:k], [0.0] * (3 - k)))[:k]
-            cor = cor + self.M[:, :k] @ wxc
+            cor = cor + self.current_inertia[:, :k] @ wxc
         rest = (
             cor
             + self.D_L @ nu_r

@@ -32,7 +32,7 @@ ANGLE_NAMES = {"roll", "pitch", "yaw"}
 CORIOLIS_FORMS = ("full", "none")  # C_RB(nu) nu + C_A(nu_r) nu_r, or no Coriolis terms (linear models)
 # What the inertia acts on in a current: M nu_dot (section 1 of the brief) or M nu_r_dot (Fossen's
 # linear DP model, M nu_r_dot + D nu_r = tau; they differ by M (omega x nu_c) while turning).
-CURRENT_INERTIA = ("absolute", "relative")
+CURRENT_INERTIA = ("absolute", "relative", "added")
 # Units a thruster's speed and thrust coefficient may be given in (``unit:`` beside value and
 # source), with the conversion to what the model works in: shaft speeds in rev/s.
 SPEED_UNITS: dict[str, Callable[[float], float]] = {

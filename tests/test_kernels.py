@@ -60,7 +60,7 @@ def _params(vessel) -> rigid_body.RigidBodyParams:
         th.time_constant,
         th.law == "quadratic",
         vessel.coriolis != "none",
-        vessel.current_inertia == "relative",
+        vessel.current_inertia,
         angles,
     )
 

@@ -9,11 +9,13 @@ Parameters come packed by ``rigid_body_params`` (NumPy, once per vessel):
 - ``K`` (dof, m + 3 dof): M^-1 [B, -I, -D_L, -D_Q];
 - ``MS``: 6 DOF [M_RB; M_A] (12, 6), Coriolis from [a; b] = M nu; 3 DOF rows u, v of M_RB and M_A (4, 3);
 - ``MAL`` (dof, 3): M_A's first three columns (added mass times the linear current), 6 DOF;
-- ``ML`` (dof, k): M's first k = 3 (6 DOF) or 2 (3 DOF) columns, M (omega x nu_c) for
-  ``current_inertia: relative``;
+- ``ML`` (dof, k): the first k = 3 (6 DOF) or 2 (3 DOF) columns of the matrix the current's
+  rotation term acts through: M (omega x nu_c) for ``current_inertia: relative``, M_A (omega x nu_c)
+  for ``added`` (zeros, and unused, for ``absolute``);
 - ``g6``: (W - B, g_x, g_y, g_z) restoring coefficients (zeros for 3 DOF);
 - ``th`` (3, m): rows k_forward, k_reverse, 1 / time constant;
-- ``flags``: (dof, thrust law code (``thrust_law.LAWS``), Coriolis on, relative inertia).
+- ``flags``: (dof, thrust law code (``thrust_law.LAWS``), Coriolis on, inertia on the relative
+  acceleration: ``current_inertia`` relative or added).
 """
 
 from __future__ import annotations
@@ -57,7 +59,7 @@ def rigid_body_params(
     time_constant: np.ndarray,
     law: int,
     coriolis: bool,
-    relative: bool,
+    current_inertia: str,
     angle_index: list[int],
 ) -> RigidBodyParams:
     """Pack a vessel's (symmetrised) matrices and thruster data for the kernels."""
@@ -71,15 +73,17 @@ def rigid_body_params(
     if dof == 6:
         MS = np.vstack([M_RB, M_A])
         MAL = M_A[:, :3]
-        ML = M[:, :3]
     else:
         MS = np.vstack([M_RB[:2], M_A[:2]])
         MAL = np.zeros((3, 3))
-        ML = M[:, :2]
+    # M nu_r_dot (relative) or M_RB nu_dot + M_A nu_r_dot (added) = M nu_dot + that matrix (omega x nu_c)
+    on_current = {"absolute": None, "relative": M, "added": M_A}[current_inertia]
+    k = 3 if dof == 6 else 2
+    ML = np.zeros((dof, k)) if on_current is None else on_current[:, :k]
     th = np.vstack(
         [np.asarray(k_forward, float), np.asarray(k_reverse, float), 1.0 / np.asarray(time_constant, float)]
     )
-    flags = np.array([dof, int(law), int(coriolis), int(relative)], dtype=np.int64)
+    flags = np.array([dof, int(law), int(coriolis), int(on_current is not None)], dtype=np.int64)
     g = np.zeros(4) if g6 is None else np.asarray(g6, float)
     return RigidBodyParams(
         _c(K), _c(MS), _c(MAL), _c(ML), _c(g), _c(th), flags, np.asarray(angle_index, dtype=np.int64)
