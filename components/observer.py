@@ -31,6 +31,11 @@ runs on DVL/gyro/AHRS and the model alone, says so in ``dead_reckoning`` = 1, an
 ``gate_max_rejections`` consecutive rejected fixes reset the horizontal position to the next
 failing fix (its covariance to the sensor's).
 
+Every sensor's samples pass an innovation gate (``innovation_gate``, a NIS threshold; by default
+only gross errors, 100 sigma: ``INNOVATION_GATE``) and are counted in ``samples_rejected``; more
+than ``gate_max_rejections`` consecutive rejected samples of any sensor reset the states it
+measures to the next failing sample, as for position fixes.
+
 Wave filter (``wave_filter`` = 1, fixed at initialisation): DP must not chase first-order wave
 motion (the thrusters cannot follow it, saturate, and the allocation error spills into roll and
 yaw). The state is extended by a linear wave model per horizontal position (and depth) in NED,
@@ -71,6 +76,10 @@ P0_POSITION = 100.0**2  # m^2 (and rad^2 for angles): before the first fix nothi
 P0_VELOCITY = 1.0  # (m/s)^2, (rad/s)^2
 P0_BIAS_ACCEL = 0.1  # m/s^2: initial bias std, as an acceleration (scaled by M_jj into a force)
 R_FLOOR = 1e-12  # smallest measurement variance (a noise-free sensor file must not make S singular)
+# Default innovation gate: NIS above (100 sigma)^2 is a gross error (a corrupt sentence with a good
+# checksum, a depth of 500 m for 5 m), never noise, even from a filter whose model is off by a lot;
+# without it one such sample drags the estimate by metres, or diverges it (hardware-in-the-loop).
+INNOVATION_GATE = 1.0e4
 
 
 @dataclass(frozen=True)
@@ -130,6 +139,8 @@ class ObserverBlock(Block):
         outputs += [
             Signal("pos_fixes_rejected", "", "position fixes rejected by a gate so far"),
             Signal("dead_reckoning", "", "1 while no position fix was accepted for more than dr_timeout"),
+            Signal("samples_rejected", "", "samples of any sensor rejected by a gate so far (position "
+                   "fixes included)"),
         ]
         outputs += [Signal(f"wave_{nm}_hat", "m", f"estimated wave-frequency displacement {nm} (NED; "
                            "0 without wave filter)")
@@ -144,12 +155,13 @@ class ObserverBlock(Block):
             Signal("r_scale", "", "measurement variance = r_scale * noise_std^2 from the vessel file",
                    min=0.0, min_open=True, start=1.0, tunable=True),
             Signal("innovation_gate", "", "reject a sample whose normalised innovation squared exceeds "
-                   "this (chi-square; 0 = accept all)", min=0.0, start=0.0, tunable=True),
+                   "this (chi-square; 0 = accept all; default: gross errors only, 100 sigma)", min=0.0,
+                   start=INNOVATION_GATE, tunable=True),
             Signal("gate_probability", "", "chi-square gate on position fixes: accept a fix whose "
                    "NIS is below the chi2_m quantile at this probability (e.g. 0.999; 0 = off)",
                    min=0.0, max=0.999999, start=0.0, tunable=True),
-            Signal("gate_max_rejections", "", "after this many consecutive rejected position fixes "
-                   "the next failing one resets the position (0 = never)", min=0, start=5,
+            Signal("gate_max_rejections", "", "after this many consecutive rejected samples of a sensor "
+                   "the next failing one resets the states it measures (0 = never)", min=0, start=5,
                    type="integer", tunable=True),
             Signal("dr_timeout", "s", "dead reckoning is declared after this long without an "
                    "accepted position fix", min=0.0, start=3.0, tunable=True),
@@ -221,6 +233,7 @@ class ObserverBlock(Block):
         self._o_state = o.at([f"{n}_hat" for n in vessel.eta_names + vessel.nu_names]
                              + [f"bias_{t}_hat" for t in vessel.tau_names])
         self._o_std, self._o_rej, self._o_dr = o["position_std"], o["pos_fixes_rejected"], o["dead_reckoning"]
+        self._o_all_rej = o["samples_rejected"]
         self._o_wave = o.at(f"wave_{vessel.eta_names[i]}_hat" for i in self._wdof)
         pos = np.arange(self._n_out)
         self._layout = np.concatenate([pos[self._o_state], [self._o_std], pos[self._o_wave]]).astype(np.int64)
@@ -240,7 +253,11 @@ class ObserverBlock(Block):
         self.n_rejected = 0  # rejections by either gate, any sensor
         self.pos_rejected = 0  # rejected position fixes
         self.pos_resets = 0  # position resets after too many consecutive rejections
+        self.resets = 0  # resets of any other sensor's states after too many consecutive rejections
         self._consecutive = 0  # consecutive rejected position fixes
+        # other sensors: (consecutive rejected samples, sample counter of the last), by sensor: the compiled
+        # step reports only rejections, so a run is consecutive when the counter moved by exactly one
+        self._runs: dict[int, tuple[int, float]] = {}
         self._since_fix = 0.0  # s since the last accepted position fix
         self._apply_params()
 
@@ -323,16 +340,17 @@ class ObserverBlock(Block):
                             self.d, self.nw, self._inv_tb, self.Minv, self._MinvG, self._MinvDL, self._MinvDQ,
                             self._g6_arr, self._Aw, self._A, self._angle_arr)
 
-    def _update(self, z: np.ndarray, ch: _Channels) -> bool:
-        """Measurement update with one sensor's channels; False if rejected by the gate."""
+    def _update(self, z: np.ndarray, ch: _Channels, sensor: int = -1, count: float = 0.0) -> bool:
+        """Measurement update with one sensor's channels (sample ``count`` of sensor ``sensor``); False
+        if rejected by the gate."""
         if ch.has_eta and not self._all_initialised and not self._initialised[ch.eta_idx].all():
-            return self._first_fix(z, ch)
+            return self._first_fix(z, ch, sensor, count)
         if ch.wave and self.nw:
-            return self._update_wave(z, ch)
+            return self._update_wave(z, ch, sensor, count)
         ok, _ = kernels.ekf.update_measured(self.x, self.P, ch.idx, z, ch.angle, ch.var, self._r_scale,
                                             self._threshold(ch, len(z)), self._angle_arr)  # x, P in place
         if not ok:
-            return self._rejected(z, ch)
+            return self._rejected(z, ch, sensor, count)
         if ch.pos_fix:
             self._consecutive = 0
         return True
@@ -345,18 +363,29 @@ class ObserverBlock(Block):
             thr = min(thr, self._pos_thr.get(m) or chi2_quantile(self._gate_p, m))
         return thr
 
-    def _rejected(self, z: np.ndarray, ch: _Channels) -> bool:
-        """Count a gated sample; too many consecutive rejected position fixes reset the position."""
+    def _rejected(self, z: np.ndarray, ch: _Channels, sensor: int = -1, count: float = 0.0) -> bool:
+        """Count a gated sample; too many consecutive rejected samples of a sensor reset the states it
+        measures (True: the sample was taken that way). Why for every sensor: a gate alone would
+        lock a filter that has drifted (or a sensor re-zeroed) out of that sensor for good."""
         if ch.pos_fix:
             self._consecutive += 1
             if 0 < self._max_rej < self._consecutive:
                 self._reset_position(z, ch)
                 return True
             self.pos_rejected += 1
+        elif sensor >= 0:
+            run, last = self._runs.get(sensor, (0, -math.inf))
+            run = run + 1 if count == last + 1.0 else 1
+            self._runs[sensor] = (run, count)
+            if 0 < self._max_rej < run:
+                self._reset_channels(z, ch)
+                self._runs[sensor] = (0, count)
+                self.resets += 1
+                return True
         self.n_rejected += 1
         return False
 
-    def _update_wave(self, z: np.ndarray, ch: _Channels) -> bool:
+    def _update_wave(self, z: np.ndarray, ch: _Channels, sensor: int = -1, count: float = 0.0) -> bool:
         """Update with a sensor the wave filter adds to: positions eta + xi, body velocities nu + R^T zeta.
 
         General H (one or two non-zeros per row for positions; R^T and its derivative in the angles
@@ -390,7 +419,7 @@ class ObserverBlock(Block):
         ok, _ = kernels.ekf.update_general(self.x, self.P, H, y, ch.var * self._r_scale,
                                            self._threshold(ch, m), self._angle_arr)  # x, P in place
         if not ok:
-            return self._rejected(z, ch)
+            return self._rejected(z, ch, sensor, count)
         if ch.pos_fix:
             self._consecutive = 0
         return True
@@ -427,19 +456,24 @@ class ObserverBlock(Block):
 
     def _reset_position(self, z: np.ndarray, ch: _Channels) -> None:
         """Take the fix as the position (the filter had drifted beyond its own covariance)."""
+        self._reset_channels(z, ch)
+        self._consecutive = 0
+        self.pos_resets += 1
+
+    def _reset_channels(self, z: np.ndarray, ch: _Channels) -> None:
+        """Take the sample as the states it measures, with the sensor's variance and no correlation."""
         idx = ch.idx
         self.x[idx] = z
         self.P[idx, :] = 0.0
         self.P[:, idx] = 0.0
         self.P[idx, idx] = ch.var * self._r_scale
-        for i in idx.tolist():  # the fix is the whole position: no wave displacement on top
+        for i in idx.tolist():  # the sample is the whole position: no wave displacement on top
             kind, k = self._wave_map.get(i, ("", -1))
             if kind == "pos":
                 self.x[self._w0 + k] = 0.0
-        self._consecutive = 0
-        self.pos_resets += 1
+        self._wrap()
 
-    def _first_fix(self, z: np.ndarray, ch: _Channels) -> bool:
+    def _first_fix(self, z: np.ndarray, ch: _Channels, sensor: int = -1, count: float = 0.0) -> bool:
         """First sample of a position/attitude channel: take it as the state, with its noise."""
         fresh = ch.is_eta.copy()
         fresh[fresh] = ~self._initialised[ch.idx[fresh]]
@@ -455,7 +489,7 @@ class ObserverBlock(Block):
         if rest.any():  # channels of the same sensor already initialised, or velocities
             sub = _Channels.build(ch.idx[rest], ch.angle[rest], np.zeros(int(rest.sum()), bool), ch.var[rest],
                                   ch.pos_fix, any(int(i) in self._wave_map for i in ch.idx[rest]))
-            return self._update(z[rest], sub)
+            return self._update(z[rest], sub, sensor, count)
         return True
 
     def _wrap(self) -> None:
@@ -474,6 +508,7 @@ class ObserverBlock(Block):
         y[self._o_std] = math.sqrt(P[0, 0] + P[1, 1])
         y[self._o_rej] = self.pos_rejected
         y[self._o_dr] = 1.0 if self._since_fix > self._dr_timeout else 0.0
+        y[self._o_all_rej] = self.n_rejected
         y[self._o_wave] = self.x[3 * d : 3 * d + self.nw] if self.nw else 0.0
         return y
 
@@ -512,14 +547,15 @@ class ObserverBlock(Block):
         i = res >> 2
         if i < len(self._sensors):  # the kernel stopped at sensor i
             if res & kernels.ekf.REJECTED:
-                meas, _, ch = self._sensors[i]
-                if self._rejected(u[meas].copy(), ch) and ch.pos_fix:
+                meas, count, ch = self._sensors[i]
+                if self._rejected(u[meas].copy(), ch, i, float(u[count])) and ch.pos_fix:
                     self._since_fix = 0.0
                 i += 1
             self._update_sensors(u, i)
             return self.output()
         y[self._o_rej] = self.pos_rejected
         y[self._o_dr] = 1.0 if self._since_fix > self._dr_timeout else 0.0
+        y[self._o_all_rej] = self.n_rejected
         return y.copy()
 
     def _step_reference(self, t: float, h: float, u: np.ndarray) -> np.ndarray:
@@ -539,5 +575,5 @@ class ObserverBlock(Block):
             c = u[count]
             if c != self._last_count[i]:
                 self._last_count[i] = c
-                if self._update(u[meas].copy(), ch) and ch.pos_fix:
+                if self._update(u[meas].copy(), ch, i, float(c)) and ch.pos_fix:
                     self._since_fix = 0.0

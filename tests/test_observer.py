@@ -235,7 +235,9 @@ def test_innovation_gate_rejects_outlier(minerva: VesselSpec) -> None:
 
     gated = observer(minerva, innovation_gate=16.0)
     assert abs(feed(gated)) < 0.05 and gated.n_rejected == 1
-    assert feed(observer(minerva)) > 0.2  # without the gate it drags the estimate (4 sigma of USBL)
+    default = observer(minerva)  # the default gate: gross errors (a 30 m jump of a 0.1 m USBL is one)
+    assert abs(feed(default)) < 0.05 and default.n_rejected == 1
+    assert feed(observer(minerva, innovation_gate=0.0)) > 0.2  # no gate: it drags the estimate
 
 
 def test_errors_name_input_and_parameter(minerva: VesselSpec) -> None:
@@ -258,7 +260,7 @@ def test_interface_and_deepcopy(amv: VesselSpec) -> None:
     assert iface.output_names() == ["north_hat", "east_hat", "yaw_hat", "u_hat", "v_hat", "r_hat",
                                     "bias_X_hat", "bias_Y_hat", "bias_N_hat", "position_std",
                                     "pos_fixes_rejected", "dead_reckoning",  # appended (issue 5)
-                                    "wave_north_hat", "wave_east_hat"]
+                                    "samples_rejected", "wave_north_hat", "wave_east_hat"]
     obs = observer(amv)
     u = np.ones(len(iface.inputs))
     obs.step(0.0, 0.05, u)

@@ -296,3 +296,61 @@ def test_wave_filter_separates_wave_motion_from_the_low_frequency_estimate(miner
     assert np.sqrt(np.mean((wave_hat - wave_true) ** 2)) < 0.3 * rms
     assert np.sqrt(np.mean(lf_off**2)) > 0.8 * rms  # without: the waves go to the controller
     assert np.all(res_off["y"][:, col(minerva, "wave_north_hat")] == 0.0)
+
+
+def _depth_stream(vessel: VesselSpec, obs: ObserverBlock, depth: Callable[[int], float],
+                  steps: int, h: float = 0.1) -> np.ndarray:
+    """Outputs per step of ``obs`` fed a hull at rest at DEPTH, every sensor sampling every step
+    (noise-free) except the depth sensor, which reads ``depth(k)`` at step k."""
+    names = ObserverBlock.interface(vessel).input_names()
+    d = vessel.dof
+    eta = np.zeros(d)
+    eta[2] = DEPTH
+    u = np.zeros(len(names))
+    u[-d:] = VesselModel(vessel).restoring(eta)
+    values = dict(zip(vessel.eta_names + vessel.nu_names, [*eta, *np.zeros(d)], strict=True))
+    ys = []
+    for k in range(steps):
+        for s in vessel.sensors:
+            for c in s.channels:
+                u[names.index(f"meas_{c}")] = depth(k) if c == "down" else values[c]
+            u[names.index(f"{s.name}_count")] = k + 1.0
+        ys.append(obs.step(k * h, h, u).copy())
+    return np.array(ys)
+
+
+def test_a_gross_error_of_any_sensor_is_rejected_by_default(minerva: VesselSpec) -> None:
+    """A depth of 500 m (a corrupt sentence with a good checksum) once, at 5 m: the default gate
+    rejects it, the estimate does not move, samples_rejected counts it; without the gate the same
+    sample throws the depth estimate and its rate far off (what diverged the filter over the wire)."""
+    col = ObserverBlock.interface(minerva).output_names()
+    spike = lambda k: 500.0 if k == 100 else DEPTH  # noqa: E731
+    y = _depth_stream(minerva, observer(minerva), spike, 150)
+    assert np.all(np.isfinite(y))
+    assert np.max(np.abs(y[:, col.index("down_hat")] - DEPTH)) < 1e-6
+    assert y[-1, col.index("samples_rejected")] == 1.0 and y[99, col.index("samples_rejected")] == 0.0
+    assert y[-1, col.index("pos_fixes_rejected")] == 0.0  # not a position fix
+    free = _depth_stream(minerva, observer(minerva, innovation_gate=0.0), spike, 102)
+    assert abs(free[100, col.index("down_hat")] - DEPTH) > 10.0
+
+
+@pytest.mark.parametrize("max_rej", [5, 0])
+def test_a_sensor_that_disagrees_for_good_is_taken_after_max_rejections(minerva: VesselSpec,
+                                                                       max_rej: int) -> None:
+    """A depth sensor re-zeroed by 3 m (far beyond the gate: 300 sigma of 0.01 m) must not be locked
+    out for good: after gate_max_rejections consecutive rejections its next sample resets the depth
+    (0: never, the filter keeps its own depth). A gross error now and then, between good samples,
+    never builds up to a reset."""
+    col = ObserverBlock.interface(minerva).output_names()
+    obs = observer(minerva, gate_max_rejections=max_rej)
+    y = _depth_stream(minerva, obs, lambda k: DEPTH + (3.0 if k >= 100 else 0.0), 160)
+    down = y[:, col.index("down_hat")]
+    if max_rej:
+        assert obs.resets == 1 and obs.n_rejected == max_rej
+        assert np.max(np.abs(down[100 : 100 + max_rej] - DEPTH)) < 1e-6  # the rejected ones
+        assert down[-1] == pytest.approx(DEPTH + 3.0, abs=0.01)
+    else:
+        assert obs.resets == 0 and obs.n_rejected == 60 and abs(down[-1] - DEPTH) < 0.01
+    sparse = observer(minerva, gate_max_rejections=max_rej)
+    _depth_stream(minerva, sparse, lambda k: 500.0 if k % 3 == 0 and k > 0 else DEPTH, 160)
+    assert sparse.resets == 0 and sparse.n_rejected == 53
