@@ -252,11 +252,9 @@ class ObserverBlock(Block):
         self._all_initialised = False  # every eta state set (the usual case: one test per update)
         self.n_rejected = 0  # rejections by either gate, any sensor
         self.pos_rejected = 0  # rejected position fixes
-        self.pos_resets = 0  # position resets after too many consecutive rejections
-        self.resets = 0  # resets of any other sensor's states after too many consecutive rejections
+        self.pos_resets, self.resets = 0, 0  # resets after too many rejections: position, other sensors
         self._consecutive = 0  # consecutive rejected position fixes
-        # other sensors: (consecutive rejected samples, sample counter of the last), by sensor: the compiled
-        # step reports only rejections, so a run is consecutive when the counter moved by exactly one
+        # other sensors' (consecutive rejections, counter of the last) (a run: the counter moved by one)
         self._runs: dict[int, tuple[int, float]] = {}
         self._since_fix = 0.0  # s since the last accepted position fix
         self._apply_params()

@@ -78,9 +78,12 @@ class PlantBlock(Block):
         params = [
             Signal("seed", "", "seed of the sensor noise (same seed, identical run)", min=0, start=0,
                    type="integer"),
+            # max: 100 x the vessel file's noise (a 0.1 m fix with 10 m noise) is no sensor worth fusing
             Signal("noise_scale", "", "multiplies sensor noise std and bias (0 = perfect sensors)",
-                   min=0.0, start=1.0),
-            Signal("current_speed", "m/s", "ocean current speed", min=0.0, start=0.0, tunable=True),
+                   min=0.0, max=100.0, start=1.0),
+            # max: the strongest tidal races (Saltstraumen, Moskstraumen) reach about 5 m/s
+            Signal("current_speed", "m/s", "ocean current speed", min=0.0, max=10.0, start=0.0,
+                   tunable=True),
             Signal("current_direction", "rad", "direction the current flows TOWARDS, from north",
                    start=0.0, tunable=True),
         ]
@@ -116,8 +119,9 @@ class PlantBlock(Block):
                    min=1.0, max=7.0, start=3.3),
             Signal("wave_components", "", "number of regular wave components (random phases from seed)",
                    min=1, max=2000, start=40, type="integer"),
+            # max: half the current speed's; a slow variation of 5 m/s std is no sea a vessel works in
             Signal("current_variation", "m/s", "std of the slow Gauss-Markov variation of each NED "
-                   "current component (0 = constant current)", min=0.0, start=0.0),
+                   "current component (0 = constant current)", min=0.0, max=5.0, start=0.0),
             Signal("current_time_constant", "s", "time constant of the current variation", min=1e-3,
                    start=300.0),
             Signal("mag_fault_amplitude", "rad", "magnetometer calibration fault: heading error "

@@ -3,12 +3,18 @@
 Every physical parameter in a vessel file is written as ``{value: ..., source: "..."}`` so a user
 can see where each number came from (measured, computed, assumed, corrected erratum). Bad files
 fail with one line naming the file and the field.
+
+Every key of a file is one the loader reads (a misspelled one would leave a default in its place
+unnoticed), numbers are YAML 1.2's plain decimals (``010`` is 10, ``0x10`` is text), and each number
+must be one a real vessel could have: finite, within ``MAX_MAGNITUDE``, thrusters with a direction,
+a bounded force and a position on the hull.
 """
 
 from __future__ import annotations
 
 import hashlib
 import pickle
+import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -18,9 +24,54 @@ import numpy as np
 import yaml
 
 from . import registry
+from .names import did_you_mean
 
-# libyaml (~9x faster than the pure-Python loader): every run and every sweep case reads a vessel file
-_LOADER: Any = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+_Base: Any = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
+# YAML 1.2 core schema numbers, as seafmu/yamlfile.py reads the scenario files (components/ does not
+# import seafmu/; tests/test_scenario_errors.py holds the two equal).
+_INT_TAG, _FLOAT_TAG = "tag:yaml.org,2002:int", "tag:yaml.org,2002:float"
+_DECIMAL_INT = re.compile(r"[-+]?[0-9]+\Z")
+_DECIMAL_FLOAT = re.compile(r"(?:[-+]?(?:(?:[0-9]+\.[0-9]*|\.[0-9]+)(?:[eE][-+]?[0-9]+)?"
+                            r"|[0-9]+[eE][-+]?[0-9]+)|[-+]?\.(?:inf|Inf|INF)|\.(?:nan|NaN|NAN))\Z")
+
+
+class _Loader(_Base):  # type: ignore[misc, valid-type]
+    """libyaml (~9x faster than the pure-Python loader: every run and every sweep case reads a vessel
+    file) with YAML 1.2 numbers: the int and float resolvers (Python level, also for the C loader)
+    replaced, so 0x10, 0b11, 1_0 and 1:30 stay text and 010 is 10, not octal 8."""
+
+
+_Loader.yaml_implicit_resolvers = {  # the class's own copy: yaml.SafeLoader's stay as they are
+    first: [(tag, rx) for tag, rx in pairs if tag not in (_INT_TAG, _FLOAT_TAG)]
+    for first, pairs in _Base.yaml_implicit_resolvers.items()
+}
+for _first in "-+0123456789":
+    _Loader.yaml_implicit_resolvers.setdefault(_first, []).insert(0, (_INT_TAG, _DECIMAL_INT))
+for _first in "-+.0123456789":
+    _Loader.yaml_implicit_resolvers[_first].insert(0 if _first == "." else 1, (_FLOAT_TAG, _DECIMAL_FLOAT))
+
+
+def _construct_int(loader: Any, node: yaml.ScalarNode) -> int:
+    text = loader.construct_scalar(node)
+    if not _DECIMAL_INT.match(text):  # also an explicit !!int 0x10: decimal only
+        raise yaml.constructor.ConstructorError(None, None, f"'{text}' is not a decimal integer",
+                                                node.start_mark)
+    return int(text)  # int("010") is 10: a leading zero is not octal
+
+
+def _construct_float(loader: Any, node: yaml.ScalarNode) -> float:
+    text = loader.construct_scalar(node)
+    if not (_DECIMAL_FLOAT.match(text) or _DECIMAL_INT.match(text)):
+        raise yaml.constructor.ConstructorError(None, None, f"'{text}' is not a decimal number",
+                                                node.start_mark)
+    if text.lower().endswith((".inf", ".nan")):  # float() reads "inf" and "nan", not YAML's ".inf"
+        return float(text.replace(".", "", 1))
+    return float(text)
+
+
+_Loader.add_constructor(_INT_TAG, _construct_int)
+_Loader.add_constructor(_FLOAT_TAG, _construct_float)
 
 VESSEL_DIR = Path(__file__).parent / "vessels"
 
@@ -41,6 +92,32 @@ SPEED_UNITS: dict[str, Callable[[float], float]] = {
 K_UNITS: dict[str, dict[str, Callable[[float], float]]] = {
     "linear": {"N/(rev/s)": lambda k: k, "N/rps": lambda k: k, "N/rpm": lambda k: k * 60.0},
     "quadratic": {"N/(rev/s)^2": lambda k: k, "N/rps^2": lambda k: k, "N/rpm^2": lambda k: k * 3600.0},
+}
+
+
+# Plausibility bounds of vessel numbers, SI units. Far beyond any real vessel (the largest ships: 5e8 kg,
+# a yaw inertia with added mass ~1e13 kg m^2, propellers of under 10 MN), so none is refused, yet far
+# below where the model's products (M^-1 tau, k n^2, r x F) overflow or lose all meaning.
+MAX_MAGNITUDE = 1e15  # any number of the file
+MAX_THRUST = 1e8  # N: one thruster at n_max
+MAX_SHAFT_SPEED = 1e3  # rev/s (60 000 rpm; small ROV thrusters turn at under 100 rev/s)
+MAX_ARM = 1e3  # m: a thruster's position, each axis (ships are under 500 m long)
+MAX_CONDITION = 1e12  # largest / smallest eigenvalue of the total mass matrix
+
+# The keys the loader reads; any other is refused (``_Reader.fields``).
+TOP_FIELDS = ("name", "title", "dof", "mass_matrix", "added_mass", "linear_damping", "quadratic_damping",
+              "restoring", "coriolis", "current_inertia", "thrusters", "sensors", "gnc", "extra")
+RESTORING_FIELDS = ("weight", "buoyancy", "r_g", "r_b")  # 6 DOF only
+THRUSTERS_FIELDS = ("law", "units")
+THRUSTER_FIELDS = ("name", "position", "direction", "k_forward", "k_reverse", "n_max", "time_constant")
+SENSOR_FIELDS = ("name", "channels", "rate_hz", "noise_std", "bias")
+LEAF_FIELDS = ("value", "source", "unit")  # unit: only where a unit is converted (K_UNITS, SPEED_UNITS)
+# extra: the sections something reads, with their fields (None: one value)
+EXTRA_FIELDS: dict[str, tuple[str, ...] | None] = {
+    "land": ("pitch", "effective_diameter", "track_width", "max_forward_speed", "max_sideways_speed",
+             "on_the_spot_rotation"),  # amv_land.LandParams.from_vessel
+    "bis": ("mass", "length", "gravity", "M_bis", "D_bis"),  # published bis data (test_supply_vessel.py)
+    "variant_of": None,  # seafmu/build.py: a variant of a vessel gets no FMUs of its own
 }
 
 
@@ -164,7 +241,7 @@ def _document(text: bytes) -> Any:
     raw = _DOCUMENTS.get(key)
     if raw is not None:
         return pickle.loads(raw)
-    doc = yaml.load(text, Loader=_LOADER)
+    doc = yaml.load(text, Loader=_Loader)
     if len(_DOCUMENTS) >= _MAX_DOCUMENTS:
         _DOCUMENTS.clear()
     _DOCUMENTS[key] = pickle.dumps(doc, protocol=pickle.HIGHEST_PROTOCOL)
@@ -174,8 +251,9 @@ def _document(text: bytes) -> Any:
 def load_vessel(name_or_path: str | Path) -> VesselSpec:
     path = vessel_path(name_or_path)
     if not path.is_file():
-        from .names import did_you_mean
-
+        given = Path(name_or_path)
+        if path.is_dir() or (given.is_dir() and (given.is_absolute() or len(given.parts) > 1)):
+            raise VesselFileError(f"{path if path.is_dir() else given}: is a folder, not a vessel file")
         bundled = bundled_vessels()
         raise VesselFileError(
             f"vessel '{name_or_path}': no such vessel file {path}{did_you_mean(str(name_or_path), bundled)} "
@@ -185,9 +263,22 @@ def load_vessel(name_or_path: str | Path) -> VesselSpec:
         doc = _document(path.read_bytes())
     except yaml.YAMLError as exc:
         raise VesselFileError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+    except ValueError as exc:  # an integer of more than 4300 digits (Python's int-from-text limit)
+        raise VesselFileError(f"{path}: not valid YAML ({' '.join(str(exc).split())[:160]})") from None
+    except OSError as exc:
+        raise VesselFileError(f"{path}: cannot read ({exc.strerror or exc})") from None
     if not isinstance(doc, dict):
         raise VesselFileError(f"{path}: expected a mapping at the top level")
     return _parse(doc, path)
+
+
+def _is_number(x: Any) -> bool:
+    """A YAML number: text ("1_0", which float() reads as 10) and true/false are not."""
+    return isinstance(x, int | float) and not isinstance(x, bool)
+
+
+def _all_numbers(x: Any) -> bool:
+    return all(_all_numbers(v) for v in x) if isinstance(x, list) else _is_number(x)
 
 
 class _Reader:
@@ -200,41 +291,75 @@ class _Reader:
     def fail(self, key: str, msg: str) -> VesselFileError:
         return VesselFileError(f"{self.path}: field '{key}': {msg}")
 
-    def get(self, node: dict, key: str, where: str, required: bool = True) -> Any:
+    def too_big(self, key: str, value: float) -> VesselFileError:
+        return self.fail(key, f"{value:g} is beyond any vessel's (|value| <= {MAX_MAGNITUDE:g} in SI units)")
+
+    def fields(self, node: Any, where: str, known: tuple[str, ...]) -> None:
+        """Refuse a key the loader does not read: misspelled, it would leave a default in its place."""
+        if not isinstance(node, dict):
+            return
+        for key in node:
+            if key not in known:
+                hint = did_you_mean(str(key), known) or f" (known: {', '.join(known)})"
+                raise self.fail(f"{where}.{key}" if where else str(key), f"unknown field{hint}")
+
+    def get(self, node: dict, key: str, where: str, required: bool = True, leaf: bool = True,
+            unit: bool = False) -> Any:
+        """The field's value; a ``leaf`` (a value, not a section) may be ``{value, source}`` (and
+        ``unit`` where the caller converts it), nothing else."""
         full = f"{where}.{key}" if where else key
         if not isinstance(node, dict) or key not in node:
             if required:
                 raise self.fail(full, "missing")
             return None
         item = node[key]
-        if isinstance(item, dict) and "value" in item:
+        if isinstance(item, dict) and (leaf or "value" in item):
+            self.fields(item, full, LEAF_FIELDS if unit else LEAF_FIELDS[:2])
+            if "value" not in item:
+                raise self.fail(full, "expected {value: ..., source: ...}; 'value' is missing")
             if "source" not in item:
                 raise self.fail(full, "has a value but no 'source' (provenance is required)")
             self.provenance[full] = str(item["source"])
             return item["value"]
         return item
 
+    def section(self, node: dict, key: str, where: str, known: tuple[str, ...],
+                required: bool = True) -> dict | None:
+        """A mapping of fields (``restoring``, ``thrusters``...), every key one of ``known``."""
+        full = f"{where}.{key}" if where else key
+        item = self.get(node, key, where, required=required, leaf=False)
+        if item is None and not required:
+            return None
+        if not isinstance(item, dict):
+            raise self.fail(full, f"expected a mapping of {', '.join(known)}")
+        self.fields(item, full, known)
+        return item
+
     def number(self, node: dict, key: str, where: str, positive: bool = False, default: Any = None,
                units: dict[str, Callable[[float], float]] | None = None) -> float:
-        """A finite number; with ``units``, an optional ``unit:`` beside value/source converts it."""
+        """A finite number within MAX_MAGNITUDE; with ``units``, an optional ``unit:`` beside value
+        and source converts it."""
         full = f"{where}.{key}" if where else key
-        raw = self.get(node, key, where, required=default is None)
+        raw = self.get(node, key, where, required=default is None, unit=units is not None)
         if raw is None:
             return float(default)
+        if not _is_number(raw):
+            raise self.fail(full, f"expected a number, got {raw!r}")
         try:
             val = float(raw)
-        except (TypeError, ValueError):
-            raise self.fail(full, f"expected a number, got {raw!r}") from None
+        except OverflowError:
+            raise self.fail(full, "too large for a floating-point number") from None
         if not np.isfinite(val):
             raise self.fail(full, "must be finite")
         if positive and val <= 0:
             raise self.fail(full, f"must be positive, got {val}")
         item = node[key]
-        if isinstance(item, dict) and "unit" in item:
-            if units is None or item["unit"] not in units:
-                known = ", ".join(units) if units else "none (SI only)"
-                raise self.fail(full, f"unknown unit {item['unit']!r}; known: {known}")
+        if units is not None and isinstance(item, dict) and "unit" in item:
+            if item["unit"] not in units:
+                raise self.fail(full, f"unknown unit {item['unit']!r}; known: {', '.join(units)}")
             val = units[item["unit"]](val)
+        if abs(val) > MAX_MAGNITUDE:
+            raise self.too_big(full, val)
         return val
 
     def name(self, node: dict, key: str, where: str, kind: str, default: str | None = None) -> str:
@@ -250,21 +375,27 @@ class _Reader:
     def array(
         self, node: dict, key: str, where: str, shape: tuple[int, ...], default: Any = None
     ) -> np.ndarray:
-        """A vector, or a matrix given in full or as its diagonal."""
+        """A vector, or a matrix given in full or as its diagonal; finite, within MAX_MAGNITUDE."""
         full = f"{where}.{key}" if where else key
         raw = self.get(node, key, where, required=default is None)
         if raw is None:
             return np.array(default, dtype=float)
         try:
+            if not _all_numbers(raw):
+                raise ValueError
             arr = np.array(raw, dtype=float)
         except (TypeError, ValueError):
             raise self.fail(full, "expected numbers") from None
+        except OverflowError:
+            raise self.fail(full, "a number too large for a floating-point number") from None
         if len(shape) == 2 and arr.ndim == 1 and arr.shape == (shape[0],):
             arr = np.diag(arr)
         if arr.shape != shape:
             raise self.fail(full, f"expected shape {shape}, got {arr.shape}")
         if not np.all(np.isfinite(arr)):
             raise self.fail(full, "must be finite")
+        if np.any(np.abs(arr) > MAX_MAGNITUDE):
+            raise self.too_big(full, float(arr.flat[np.argmax(np.abs(arr))]))
         return arr
 
 
@@ -272,6 +403,7 @@ def _unwrap(r: _Reader, node: Any, where: str) -> Any:
     """Free-form ``extra`` data: ``{value, source}`` leaves become plain values, provenance recorded."""
     if isinstance(node, dict):
         if "value" in node:
+            r.fields(node, where, LEAF_FIELDS[:2])
             if "source" not in node:
                 raise r.fail(where, "has a value but no 'source' (provenance is required)")
             r.provenance[where] = str(node["source"])
@@ -283,25 +415,31 @@ def _unwrap(r: _Reader, node: Any, where: str) -> Any:
 
 
 def _parse(doc: dict, path: Path) -> VesselSpec:
-    # Long because it reads every section of the file in order with its own one-line error
-    # messages; each section is a few lines and the GNC section is already split out.
+    """The vessel of a file's document, section by section, each error naming its field."""
     r = _Reader(path)
-    name = str(r.get(doc, "name", ""))
     dof = r.get(doc, "dof", "")
-    if dof not in (3, 6):
+    if isinstance(dof, bool) or dof not in (3, 6):
         raise r.fail("dof", f"must be 3 or 6, got {dof!r}")
+    if dof == 3 and "restoring" in doc:  # read for 6 DOF only: given here, it would change nothing
+        raise r.fail("restoring", "a 3-DOF model (surge, sway, yaw) has no restoring forces; remove it")
+    r.fields(doc, "", TOP_FIELDS)
+    name = str(r.get(doc, "name", ""))
     shape = (dof, dof)
     M_RB = r.array(doc, "mass_matrix", "", shape)
     M_A = r.array(doc, "added_mass", "", shape)
     D_L = r.array(doc, "linear_damping", "", shape)
     D_Q = r.array(doc, "quadratic_damping", "", shape)
     M = M_RB + M_A
-    if np.any(np.linalg.eigvalsh(0.5 * (M + M.T)) <= 0):
+    eig = np.linalg.eigvalsh(0.5 * (M + M.T))
+    if np.any(eig <= 0):
         raise r.fail("mass_matrix + added_mass", "total mass matrix must be positive definite")
+    if eig[0] * MAX_CONDITION < eig[-1]:  # M^-1 tau would amplify rounding beyond any meaning
+        raise r.fail("mass_matrix + added_mass", f"total mass matrix is nearly singular (eigenvalues "
+                     f"{eig[0]:.3g} to {eig[-1]:.3g}, more than {MAX_CONDITION:g} apart)")
 
     restoring = None
     if dof == 6:
-        rs = r.get(doc, "restoring", "")
+        rs = r.section(doc, "restoring", "", RESTORING_FIELDS)
         restoring = RestoringSpec(
             weight=r.number(rs, "weight", "restoring", positive=True),
             buoyancy=r.number(rs, "buoyancy", "restoring", positive=True),
@@ -317,16 +455,46 @@ def _parse(doc: dict, path: Path) -> VesselSpec:
         raise r.fail("current_inertia", f"must be one of {', '.join(CURRENT_INERTIA)}, "
                      f"got {current_inertia!r}")
 
-    th = r.get(doc, "thrusters", "")
+    thrusters = _parse_thrusters(r, doc, dof)
+    sensors = _parse_sensors(r, doc, dof)
+    gnc = _parse_gnc(r, doc, thrusters.count)
+    title = r.get(doc, "title", "", required=False)
+
+    return VesselSpec(
+        name=name,
+        title=str(name if title is None else title),
+        dof=dof,
+        M_RB=M_RB,
+        M_A=M_A,
+        D_L=D_L,
+        D_Q=D_Q,
+        thrusters=thrusters,
+        sensors=sensors,
+        restoring=restoring,
+        source_file=str(path),
+        provenance=r.provenance,
+        extra=_parse_extra(r, doc),
+        gnc=gnc,
+        coriolis=coriolis,
+        current_inertia=current_inertia,
+    )
+
+
+def _parse_thrusters(r: _Reader, doc: dict, dof: int) -> ThrusterSpec:
+    """The ``thrusters`` section: the law and one entry per thruster, each one a real thruster could be."""
+    th = r.section(doc, "thrusters", "", THRUSTERS_FIELDS)
     law = r.get(th, "law", "thrusters")
     if law not in K_UNITS:  # the laws of kernels/laws.py (tests/test_kernels.py holds them equal)
         raise r.fail("thrusters.law", f"must be {' or '.join(repr(k) for k in K_UNITS)}, got {law!r}")
-    units = r.get(th, "units", "thrusters")
+    units = r.get(th, "units", "thrusters", leaf=False)
     if not isinstance(units, list) or not units:
         raise r.fail("thrusters.units", "expected a non-empty list of thrusters")
     names, pos, dirs, kf, kr, nmax, tc = [], [], [], [], [], [], []
     for i, unit in enumerate(units):
         where = f"thrusters.units[{i}]"
+        if not isinstance(unit, dict):
+            raise r.fail(where, f"expected a mapping of {', '.join(THRUSTER_FIELDS)}")
+        r.fields(unit, where, THRUSTER_FIELDS)
         names.append(str(r.get(unit, "name", where)))
         pos.append(r.array(unit, "position", where, (3,)))
         dirs.append(r.array(unit, "direction", where, (3,)))
@@ -334,7 +502,8 @@ def _parse(doc: dict, path: Path) -> VesselSpec:
         kr.append(r.number(unit, "k_reverse", where, positive=True, units=K_UNITS[law]))
         nmax.append(r.number(unit, "n_max", where, positive=True, units=SPEED_UNITS))
         tc.append(r.number(unit, "time_constant", where, positive=True))
-    thrusters = ThrusterSpec(
+        _check_thruster(r, where, law, dof, pos[-1], dirs[-1], kf[-1], kr[-1], nmax[-1])
+    return ThrusterSpec(
         names=names,
         positions=np.array(pos),
         directions=np.array(dirs),
@@ -345,11 +514,46 @@ def _parse(doc: dict, path: Path) -> VesselSpec:
         time_constant=np.array(tc),
     )
 
+
+def _check_thruster(r: _Reader, where: str, law: str, dof: int, position: np.ndarray, direction: np.ndarray,
+                    k_forward: float, k_reverse: float, n_max: float) -> None:
+    """Refuse a thruster no vessel has: one that gives no force, more force than any propeller, turns
+    faster than any shaft or sits off any hull (each would run, and give a meaningless result)."""
+    length = float(np.linalg.norm(direction))
+    if length < 1e-6:
+        shown = f" (length {length:g})" if length else ""
+        raise r.fail(f"{where}.direction", f"must be a non-zero vector{shown}")
+    if dof == 3 and np.hypot(direction[0], direction[1]) < 1e-6 * length:  # 3 DOF: rows X, Y, N
+        raise r.fail(f"{where}.direction", f"{direction.tolist()} has no horizontal component: in a 3-DOF "
+                     "model (surge, sway, yaw) this thruster gives no force")
+    if np.any(np.abs(position) > MAX_ARM):
+        raise r.fail(f"{where}.position", f"{position.tolist()} m is more than {MAX_ARM:g} m from the body "
+                     "origin (no vessel is that long)")
+    if n_max > MAX_SHAFT_SPEED:
+        raise r.fail(f"{where}.n_max", f"{n_max:g} rev/s is above {MAX_SHAFT_SPEED:g} rev/s "
+                     f"({MAX_SHAFT_SPEED * 60:g} rpm); no thruster shaft turns that fast")
+    for key, k in (("k_forward", k_forward), ("k_reverse", k_reverse)):
+        force = k * (n_max if law == "linear" else n_max**2) * length
+        if force > MAX_THRUST:
+            raise r.fail(f"{where}.{key}", f"gives {force:.3g} N at n_max; one thruster gives at most "
+                         f"{MAX_THRUST:g} N (the largest ship propellers give under 10 MN)")
+
+
+def _parse_sensors(r: _Reader, doc: dict, dof: int) -> list[SensorSpec]:
+    """The ``sensors`` list: each channel a state of the vessel, measured by one sensor only."""
+    listed = r.get(doc, "sensors", "", leaf=False)
+    if listed is None:
+        return []
+    if not isinstance(listed, list):
+        raise r.fail("sensors", "expected a list of sensors")
     known = set(ETA_NAMES[dof]) | set(NU_NAMES[dof])
     sensors = []
     seen: set[str] = set()
-    for i, s in enumerate(r.get(doc, "sensors", "") or []):
+    for i, s in enumerate(listed):
         where = f"sensors[{i}]"
+        if not isinstance(s, dict):
+            raise r.fail(where, f"expected a mapping of {', '.join(SENSOR_FIELDS)}")
+        r.fields(s, where, SENSOR_FIELDS)
         sname = str(r.get(s, "name", where))
         channels = r.get(s, "channels", where)
         if not isinstance(channels, list) or not channels:
@@ -373,27 +577,23 @@ def _parse(doc: dict, path: Path) -> VesselSpec:
         )
         if np.any(sensors[-1].noise_std < 0):
             raise r.fail(f"{where}.noise_std", "must be non-negative")
+    return sensors
 
-    gnc = _parse_gnc(r, doc, thrusters.count)
 
-    return VesselSpec(
-        name=name,
-        title=str(doc.get("title", name)),
-        dof=dof,
-        M_RB=M_RB,
-        M_A=M_A,
-        D_L=D_L,
-        D_Q=D_Q,
-        thrusters=thrusters,
-        sensors=sensors,
-        restoring=restoring,
-        source_file=str(path),
-        provenance=r.provenance,
-        extra=_unwrap(r, dict(doc.get("extra", {}) or {}), "extra"),
-        gnc=gnc,
-        coriolis=coriolis,
-        current_inertia=current_inertia,
-    )
+def _parse_extra(r: _Reader, doc: dict) -> dict[str, Any]:
+    """The ``extra`` section: only the sections something reads (EXTRA_FIELDS), as plain values."""
+    extra = r.section(doc, "extra", "", tuple(EXTRA_FIELDS), required=False)
+    if extra is None:
+        return {}
+    for sec, known in EXTRA_FIELDS.items():
+        if known is not None and sec in extra:
+            r.section(extra, sec, "extra", known)
+    out = _unwrap(r, dict(extra), "extra")
+    spot = (out.get("land") or {}).get("on_the_spot_rotation", False)
+    if spot is not False:  # documents the thesis; the land model (amv_land.py) has no such mode
+        raise r.fail("extra.land.on_the_spot_rotation", f"must be false (the land model turns about a "
+                     f"screw at most), got {spot!r}")
+    return out
 
 
 GNC_FIELDS = ("controller", "allocator", "guidance", "camera_thrusters", "tuning")
@@ -401,23 +601,27 @@ GNC_FIELDS = ("controller", "allocator", "guidance", "camera_thrusters", "tuning
 
 def _parse_gnc(r: _Reader, doc: dict, n_thrusters: int) -> GncSpec:
     """The ``gnc`` section: variant names (required: controller, allocator) and their data."""
-    g = r.get(doc, "gnc", "")
+    g = r.get(doc, "gnc", "", leaf=False)
     if not isinstance(g, dict):
         raise r.fail("gnc", "expected a mapping (controller, allocator, guidance, camera_thrusters, tuning)")
-    unknown = sorted(set(g) - set(GNC_FIELDS))
+    unknown = sorted(set(g) - set(GNC_FIELDS), key=str)
     if unknown:
-        raise r.fail("gnc", f"unknown field(s) {', '.join(unknown)}; known: {', '.join(GNC_FIELDS)}")
+        raise r.fail("gnc", f"unknown field(s) {', '.join(map(str, unknown))}; known: {', '.join(GNC_FIELDS)}"
+                     f"{did_you_mean(str(unknown[0]), GNC_FIELDS)}")
     controller = r.name(g, "controller", "gnc", "controller")
     camera = r.get(g, "camera_thrusters", "gnc", required=False) or []
     if not isinstance(camera, list) or any(
             isinstance(i, bool) or not isinstance(i, int) or not 1 <= i <= n_thrusters for i in camera):
         raise r.fail("gnc.camera_thrusters", f"expected a list of thruster numbers 1..{n_thrusters}")
-    tuning = _unwrap(r, dict(g.get("tuning", {}) or {}), "gnc.tuning")
+    tuning_doc = g.get("tuning") or {}
+    if not isinstance(tuning_doc, dict):
+        raise r.fail("gnc.tuning", "expected a mapping of the controller's design data")
+    tuning = _unwrap(r, dict(tuning_doc), "gnc.tuning")
     allowed = registry.CONTROLLERS[controller].tuning
-    bad = sorted(set(tuning) - set(allowed))
+    bad = sorted(set(tuning) - set(allowed), key=str)
     if bad:
-        raise r.fail("gnc.tuning", f"unknown key(s) {', '.join(bad)} for controller '{controller}'; "
-                     f"known: {', '.join(allowed)}")
+        raise r.fail("gnc.tuning", f"unknown key(s) {', '.join(map(str, bad))} for controller "
+                     f"'{controller}'; known: {', '.join(allowed)}{did_you_mean(str(bad[0]), allowed)}")
     return GncSpec(
         controller=controller,
         allocator=r.name(g, "allocator", "gnc", "allocator"),

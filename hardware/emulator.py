@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import signal
 import sys
 import threading
@@ -67,6 +68,10 @@ class VesselEmulator:
         record: str | Path | None = None,
         log_line: Callable[[str], None] | None = None,
     ) -> None:
+        for name, value, (low, high) in (("step", step, STEP_RANGE), ("status_rate", status_rate,
+                                                                      STATUS_RATE_RANGE)):
+            if not low <= value <= high:  # the command line checks these; a caller in code too
+                raise ValueError(f"{name} must be from {low:g} to {high:g}, got {value!r}")
         self.profile = profile
         self.spec = load_vessel(profile.vessel)
         spec = self.spec
@@ -283,6 +288,82 @@ def _number(option: str, item: str, value: str) -> float:
         raise ValueError(f"{option} {item!r}: the value after '=' must be a number") from None
 
 
+# The bounds of the emulator's numbers, checked by the parser: a value outside them used to be
+# taken and the emulator printed READY and then never ran (or a traceback). --step: below 0.1 ms the
+# sleep-only pacer and one plant step with its serial and CAN I/O cannot keep real time; above 1 s a
+# vessel's motion (time constants of seconds), 20 Hz sensors and the drives' 0.5 s command timeout
+# are sampled far coarser than they run. --status-rate: slower than one frame per 10 s is no
+# feedback at all; 1000 per s for each of 8 thrusters already fills a 1 Mbit/s bus (some 8000
+# frames/s); and at most one frame per step goes out (checked with --step, _check_args).
+STEP_RANGE = (1e-4, 1.0)  # s
+STATUS_RATE_RANGE = (0.1, 1000.0)  # frames per second and thruster
+BITRATE_RANGE = (10_000, 1_000_000)  # bit/s: classic CAN, 10 kbit/s to 1 Mbit/s
+
+
+def _number_in(low: float, high: float, unit: str) -> Callable[[str], float]:
+    """An argparse type: a number from ``low`` to ``high``; NaN and text are refused with the range."""
+    def parse(text: str) -> float:
+        try:
+            x = float(text)
+        except ValueError:
+            x = math.nan
+        if not low <= x <= high:  # False for NaN
+            raise argparse.ArgumentTypeError(f"must be a number from {low:g} to {high:g} {unit}, got {text}")
+        return x
+    return parse
+
+
+def _positive_seconds(text: str) -> float:
+    """An argparse type: a finite duration > 0 s (--duration, --command-timeout)."""
+    try:
+        x = float(text)
+    except ValueError:
+        x = math.nan
+    if not (x > 0 and math.isfinite(x)):
+        raise argparse.ArgumentTypeError(f"must be a finite number of seconds > 0, got {text}")
+    return x
+
+
+def _bitrate(text: str) -> int:
+    """An argparse type: a whole number of bit/s in BITRATE_RANGE (0 used to be blamed on the port)."""
+    low, high = BITRATE_RANGE
+    try:
+        b = int(text)
+    except ValueError:
+        b = 0
+    if not low <= b <= high:
+        raise argparse.ArgumentTypeError(f"must be a whole number of bit/s from {low} to {high} "
+                                         f"(classic CAN), got {text}")
+    return b
+
+
+def _nonempty(text: str) -> str:
+    """An argparse type: an empty name or path would silently mean 'not given'."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("empty; give a value or leave the flag out")
+    return text
+
+
+def _check_args(args: argparse.Namespace, iface: str) -> None:
+    """What the parser cannot check alone (ValueError, one line): the arguments together, the
+    adapter's bitrates, the --record folder. Before a port is opened or READY printed."""
+    if args.status_rate * args.step > 1.0 + 1e-9:
+        raise ValueError(f"--status-rate {args.status_rate:g}: at most one status frame per step goes out; "
+                         f"with --step {args.step:g} s at most {1.0 / args.step:g} per s")
+    if iface == "slcan":
+        from can.interfaces.slcan import slcanBus
+
+        known = sorted(getattr(slcanBus, "_BITRATES", {}))  # python-can's table of the S0..S9 commands
+        if known and args.bitrate not in known:
+            raise ValueError(f"--bitrate {args.bitrate}: an slcan adapter takes one of "
+                             f"{', '.join(str(b) for b in known)}")
+    if args.record is not None:
+        folder = Path(args.record).parent
+        if not folder.is_dir():
+            what = "is a file, not a folder" if folder.exists() else "does not exist"
+            raise ValueError(f"--record {args.record}: {folder} {what}")
+
+
 def build_parser(p: argparse.ArgumentParser | None = None,
                  scenarios: bool = False) -> argparse.ArgumentParser:
     """The emulator's options; ``--scenario`` only where the caller can read scenarios."""
@@ -294,31 +375,36 @@ def build_parser(p: argparse.ArgumentParser | None = None,
     p.add_argument(
         "--can", required=True, help="INTERFACE:CHANNEL, e.g. slcan:pty, slcan:/dev/ttyACM0, socketcan:can0"
     )
-    p.add_argument("--bitrate", type=int, default=500000, help="CAN bitrate (default 500000)")
+    p.add_argument("--bitrate", type=_bitrate, default=500000, help="CAN bitrate (default 500000)")
     p.add_argument(
-        "--profile",
+        "--profile", type=_nonempty,
         help="hardware profile for the sentence and DBC mapping (default: by channel, seafmu DBC)",
     )
     if scenarios:
         p.add_argument(
-            "--scenario", help="take the plant parameters (seed, current, initial state) from this scenario"
+            "--scenario", type=_nonempty,
+            help="take the plant parameters (seed, current, initial state) from this scenario",
         )
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="a plant parameter (SI)")
     p.add_argument("--thruster-efficiency", action="append", default=[], metavar="I=FRACTION",
                    help="thruster I (from 1) delivers FRACTION of its nominal thrust (fouled or damaged, "
                    "0..1.5; the plant parameter thruster_efficiency_I), e.g. 3=0.6")
-    p.add_argument("--step", type=float, default=0.01, help="physics step, s (default 0.01)")
-    p.add_argument("--status-rate", type=float, default=20.0, help="thruster status frames per second")
+    p.add_argument("--step", type=_number_in(*STEP_RANGE, "s"), default=0.01,
+                   help="physics step, s (default 0.01)")
+    p.add_argument("--status-rate", type=_number_in(*STATUS_RATE_RANGE, "per s"), default=20.0,
+                   help="thruster status frames per second (default 20)")
     p.add_argument(
         "--command-timeout",
-        type=float,
+        type=_positive_seconds,
         help="s: a drive without a fresh command (alive counter advancing) for this long stops "
         "(default: the profile's command_timeout, 0.5)",
     )
     p.add_argument(
-        "--duration", type=float, help="stop after this much vessel time, s (default: until Ctrl-C)"
+        "--duration", type=_positive_seconds,
+        help="stop after this much vessel time, s (default: until Ctrl-C)",
     )
-    p.add_argument("--record", help="CSV file for the true state (what a real vessel cannot tell)")
+    p.add_argument("--record", type=_nonempty,
+                   help="CSV file for the true state (what a real vessel cannot tell)")
     return p
 
 
@@ -326,6 +412,56 @@ def main(argv: list[str] | None = None, scenario_params: PlantParameters | None 
     """The command line; with ``scenario_params`` (``seafmu.emulate``) it takes ``--scenario``."""
     args = build_parser(scenarios=scenario_params is not None).parse_args(argv)
     return run_args(args, scenario_params)
+
+
+def _checked(args: argparse.Namespace, iface: str, channel: str,
+             scenario_params: PlantParameters | None) -> tuple[HardwareProfile, dict[str, Any]]:
+    """Every argument checked, nothing opened: the profile (its ports still the specs as given,
+    ``pty:...``) and the plant's parameters. The vessel, the plant parameters' ranges and the
+    profile's sentence and CAN mappings are tried here as the emulator will use them, so a bad
+    one is one line before any port exists or READY is printed."""
+    _check_args(args, iface)
+    base = load_profile(args.profile) if args.profile else None
+    options = {"sleep_after_open": 0} if iface == "slcan" else {}
+    profile = HardwareProfile(
+        name=base.name if base else f"{Path(args.vessel).stem}_emulated",
+        vessel=args.vessel,
+        serial=SerialConfig(url=args.serial),
+        can=CanConfig(
+            interface=iface,
+            channel=channel,
+            bitrate=args.bitrate,
+            options=options,
+            mapping=base.can.mapping if base else "seafmu",
+            # the profile's DBC found as the link finds it (beside the profile file)
+            dbc=str(base.dbc_path()) if base and base.can.dbc else None,
+            **(
+                {"source_address": base.can.source_address, "thruster_address": base.can.thruster_address}
+                if base
+                else {}
+            ),
+        ),
+        **(
+            {
+                "origin": base.origin,
+                "sensors": base.sensors,
+                "talkers": base.talkers,
+                "command_timeout": base.command_timeout,
+                "command_counter_max_delta": base.command_counter_max_delta,
+            }
+            if base
+            else {}
+        ),
+    )
+    if args.command_timeout is not None:
+        profile = profile.model_copy(update={"command_timeout": args.command_timeout})
+    params = _plant_params(getattr(args, "scenario", None), args.set, scenario_params,
+                           args.thruster_efficiency)
+    spec = load_vessel(profile.vessel)
+    PlantBlock(spec, dict(params))
+    sensor_mapping(profile, spec)
+    make_thruster_codec(profile, spec)
+    return profile, params
 
 
 def run_args(args: argparse.Namespace, scenario_params: PlantParameters | None = None) -> int:
@@ -336,48 +472,14 @@ def run_args(args: argparse.Namespace, scenario_params: PlantParameters | None =
         if not channel:
             print("seafmu emulate: error: --can must be INTERFACE:CHANNEL", file=sys.stderr)
             return 2
+        profile, params = _checked(args, iface, channel, scenario_params)
         ser_emu, ser_link = _port(args.serial, bridges)
         can_emu, can_link = _port(channel, bridges) if iface == "slcan" else (channel, channel)
-        base = load_profile(args.profile) if args.profile else None
-        options = {"sleep_after_open": 0} if iface == "slcan" else {}
-        profile = HardwareProfile(
-            name=base.name if base else f"{Path(args.vessel).stem}_emulated",
-            vessel=args.vessel,
-            serial=SerialConfig(url=ser_emu),
-            can=CanConfig(
-                interface=iface,
-                channel=can_emu,
-                bitrate=args.bitrate,
-                options=options,
-                mapping=base.can.mapping if base else "seafmu",
-                # the profile's DBC found as the link finds it (beside the profile file)
-                dbc=str(base.dbc_path()) if base and base.can.dbc else None,
-                **(
-                    {"source_address": base.can.source_address, "thruster_address": base.can.thruster_address}
-                    if base
-                    else {}
-                ),
-            ),
-            **(
-                {
-                    "origin": base.origin,
-                    "sensors": base.sensors,
-                    "talkers": base.talkers,
-                    "command_timeout": base.command_timeout,
-                    "command_counter_max_delta": base.command_counter_max_delta,
-                }
-                if base
-                else {}
-            ),
-        )
-        if args.command_timeout is not None:
-            profile = profile.model_copy(update={"command_timeout": args.command_timeout})
-            if not args.command_timeout > 0:
-                raise ValueError(f"--command-timeout must be > 0, got {args.command_timeout:g}")
+        profile = profile.model_copy(update={"serial": profile.serial.model_copy(update={"url": ser_emu}),
+                                             "can": profile.can.model_copy(update={"channel": can_emu})})
         emu = VesselEmulator(
             profile,
-            _plant_params(getattr(args, "scenario", None), args.set, scenario_params,
-                          args.thruster_efficiency),
+            params,
             args.step,
             args.status_rate,
             args.record,

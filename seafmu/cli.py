@@ -11,10 +11,13 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import re
 import sys
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NoReturn
+
+from seafmu.outdir import nonempty_path
 
 if TYPE_CHECKING:
     from seafmu.master import StopRequest
@@ -40,6 +43,23 @@ def one_line(text: str) -> str:
     """A message as one printable line: line breaks, control characters (a scenario's own text may
     hold any) shown escaped, so neither the line count nor the terminal changes."""
     return "".join(c if c.isprintable() else c.encode("unicode_escape").decode("ascii") for c in text)
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse with seafmu's one-line errors: ``seafmu: error: run --seed: invalid int value: 'abc'``
+    and exit 2, not a usage dump. The subcommands' parsers are made by ``add_parser`` of the main
+    one, so they are of this class too (sweep, identify, emulate included)."""
+
+    command: str | None = None  # the main parser's own errors (unrecognised arguments) name it
+
+    def error(self, message: str) -> NoReturn:
+        where = " ".join(self.prog.split()[1:]) or self.command or ""
+        named = re.fullmatch(r"argument (\S+): (.*)", message, re.DOTALL)
+        if named:  # 'run --seed: ...': the subcommand and its flag, as the user typed them
+            where, message = f"{where} {named[1]}".strip(), named[2]
+        elif not where and message == "the following arguments are required: command":
+            message = f"no command given; one of {', '.join(all_commands())}"
+        self.exit(2, f"seafmu: error: {one_line(f'{where}: {message}' if where else message)}\n")
 
 
 def _cmd_build(args: argparse.Namespace) -> int:
@@ -221,7 +241,7 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
 
     r = sub.add_parser("run", help=f"run a scenario (default: {DEFAULT_SCENARIO})")
     r.add_argument("scenario", nargs="?", default=None)
-    r.add_argument("-o", "--output", help="output folder (default: results/<scenario>)")
+    r.add_argument("-o", "--output", type=nonempty_path, help="output folder (default: results/<scenario>)")
     r.add_argument("--inprocess", action="store_true", help="run the components without FMI (comparison)")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     r.add_argument("--coupling", choices=COUPLINGS,
@@ -241,9 +261,10 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
 def _add_export(sub: argparse._SubParsersAction) -> None:
     x = sub.add_parser("export", help="write a scenario for other engines: SSP 1.0 file and/or OSP folder")
     x.add_argument("scenario")
-    x.add_argument("--ssp", metavar="FILE.ssp",
+    x.add_argument("--ssp", metavar="FILE.ssp", type=nonempty_path,
                    help="write an SSP 1.0 archive (FMUs, connections, parameters)")
-    x.add_argument("--osp", metavar="DIR", help="write OspSystemStructure.xml and the FMUs into DIR")
+    x.add_argument("--osp", metavar="DIR", type=nonempty_path,
+                   help="write OspSystemStructure.xml and the FMUs into DIR")
     x.set_defaults(fn=_cmd_export)
 
 
@@ -294,13 +315,14 @@ def all_commands() -> tuple[str, ...]:
     return tuple(name for names, _ in COMMANDS for name in names)
 
 
-def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+def build_parser(command: str | None = None) -> Parser:
     """The parser of ``seafmu``: given the subcommand a command line names, with that subcommand
     only; ``None`` (help, an unknown or missing command), with every one, so --help and the
     invalid-choice message list them all. Either way the output for the same command line is the
     same."""
     known = command in all_commands()
-    parser = argparse.ArgumentParser(prog="seafmu", description="Marine GNC co-simulation with FMI 2.0 FMUs")
+    parser = Parser(prog="seafmu", description="Marine GNC co-simulation with FMI 2.0 FMUs")
+    parser.command = command if known else None
     # Given one command, the usage line (of an unrecognised-argument error) still lists them all.
     every = "{" + ",".join(all_commands()) + "}" if known else None
     sub = parser.add_subparsers(dest="command", required=True, metavar=every)

@@ -23,9 +23,10 @@ def scenario_plant_parameters(scenario: str) -> dict[str, Any]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from seafmu.hardware.emulator import main as emulator_main
+    """``seafmu emulate ...`` itself, so that a bad argument is the same one line (seafmu.cli)."""
+    from seafmu.cli import main as cli_main
 
-    return emulator_main(argv, scenario_params=scenario_plant_parameters)
+    return cli_main(["emulate", *(sys.argv[1:] if argv is None else argv)])
 
 
 if __name__ == "__main__":

@@ -26,6 +26,7 @@ from xml.etree import ElementTree as ET
 
 import yaml
 
+from seafmu.outdir import check_output_folder, claim_output_folder
 from seafmu.scenario import Instance, Scenario
 from seafmu.unitdefs import UnitParseError, base_unit
 
@@ -102,17 +103,26 @@ def check_ssp_target(target: Path) -> Path:
         raise ExportError(f"{target}: an SSP file name ends in .ssp")
     if target.exists() and not target.is_file():
         raise ExportError(f"{target}: exists and is not a file")
-    if not target.parent.is_dir():
-        raise ExportError(f"{target}: folder {target.parent} does not exist")
+    _check_parent(target)
     return target
 
 
+def _check_parent(target: Path) -> None:
+    """The folder to write ``target`` in exists (it is not created) and is a folder."""
+    if target.parent.exists() and not target.parent.is_dir():
+        raise ExportError(f"{target}: {target.parent} is a file, not a folder")
+    if not target.parent.is_dir():
+        raise ExportError(f"{target}: folder {target.parent} does not exist")
+
+
 def check_osp_target(target: Path) -> Path:
+    """A folder to write the OSP files in: new, empty or an earlier seafmu output folder (not the
+    user's own files, which scenario.json and checks.yaml would replace)."""
     target = Path(target)
     if target.exists() and not target.is_dir():
         raise ExportError(f"{target}: exists and is not a folder")
-    if not target.parent.is_dir():
-        raise ExportError(f"{target}: folder {target.parent} does not exist")
+    _check_parent(target)
+    check_output_folder(target)
     return target
 
 
@@ -344,7 +354,7 @@ def osp_document(sc: Scenario, sources: dict[str, str]) -> bytes:
 def export_osp(sc: Scenario, target: Path) -> Export:
     """Write ``target/``: OspSystemStructure.xml, the FMUs, scenario.json (events), checks.yaml."""
     target = check_osp_target(target)
-    target.mkdir(exist_ok=True)
+    claim_output_folder(target)
     fmus = fmu_sources(sc)
     names = _file_names(fmus)
     out = Export()

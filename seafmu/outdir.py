@@ -9,25 +9,76 @@
 - Files written whole (summary, plots, report) are written to a temporary name in the same folder
   and renamed over the target (``os.replace``, atomic on POSIX): a reader sees the old or the new
   file, never half of one, whenever the writer is stopped.
+- Every command that writes a folder (run, identify, diagnose, testplan, export --osp) first checks
+  it (``check_output_folder``): a folder that holds files but none of ``SIGNATURES`` is the user's,
+  not an earlier seafmu output, and is refused before anything is written (its results.csv or
+  report.md would be replaced). The commands other than run mark their folder with ``MARKER``
+  (run's mark is its lock file), so a rerun after a failure half-way is recognised too.
 """
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import fcntl
 import os
 import shutil
 from collections.abc import Iterator
+from itertools import islice
 from pathlib import Path
 
 LOCK_FILE = ".seafmu-run.lock"
 OUTPUTS = ("results.csv", "results.parquet", "summary.json", "report.md", "trajectory.png", "states.png",
            "thrusters.png", "allocation.png")
 OUTPUT_DIRS = ("recording",)
+MARKER = ".seafmu-output"
+# A folder holding one of these was written by seafmu: the marker, run's lock file, and the files the
+# commands wrote before the marker existed (run and testplan summary.json, identify and diagnose
+# their reports, export --osp its system structure).
+SIGNATURES = (MARKER, LOCK_FILE, "summary.json", "identification.json", "identification.md",
+              "diagnosis.json", "diagnosis.md", "OspSystemStructure.xml")
 
 
 class OutputFolderError(RuntimeError):
-    """The output folder cannot be used (locked by another run); the message is one line."""
+    """The output folder cannot be used (locked by another run, the user's own folder); one line."""
+
+
+def nonempty_path(text: str) -> str:
+    """An argparse type for a path option: an empty path would silently mean the current folder or
+    the default (``Path("")`` is ``.``), so it is refused by name."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("empty path; give a path or leave the flag out")
+    return text
+
+
+def check_output_folder(path: Path) -> None:
+    """Refuse, before anything is written, an output folder that exists, is not empty and holds none
+    of ``SIGNATURES`` (the user's own files would be replaced), or whose path runs through a file.
+    A new folder, an empty one and an earlier seafmu output folder are fine."""
+    path = Path(path)
+    for parent in path.parents:  # the nearest existing ancestor must be a folder to create one in
+        if parent.exists():
+            if not parent.is_dir():
+                raise OutputFolderError(f"{path}: {parent} is a file, not a folder")
+            break
+    if path.exists() and not path.is_dir():
+        raise OutputFolderError(f"{path}: file exists")  # the message of run's mkdir before this check
+    if not path.is_dir() or any((path / name).exists() for name in SIGNATURES):
+        return
+    held = sorted(p.name for p in islice(path.iterdir(), 50))
+    if held:
+        shown = ", ".join(held[:3]) + (", ..." if len(held) > 3 else "")
+        raise OutputFolderError(f"{path}: not empty and not a seafmu output folder (it holds {shown}); "
+                                "seafmu would replace files there: give a new or empty folder")
+
+
+def claim_output_folder(path: Path) -> None:
+    """Check the folder (``check_output_folder``), create it and mark it as seafmu's (``MARKER``),
+    for the commands that have no lock file."""
+    check_output_folder(path)
+    path = Path(path)
+    path.mkdir(parents=True, exist_ok=True)
+    (path / MARKER).touch()
 
 
 @contextlib.contextmanager
@@ -58,6 +109,7 @@ class RunFolder:
         self._fd: int | None = None
 
     def __enter__(self) -> RunFolder:
+        check_output_folder(self.path)  # the lock file marks the folder as a run's from here on
         self.path.mkdir(parents=True, exist_ok=True)
         lock = self.path / LOCK_FILE
         fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)

@@ -28,7 +28,7 @@ from pydantic_core import PydanticCustomError
 
 from seafmu.components.names import did_you_mean
 from seafmu.units import UnitError, to_si
-from seafmu.yamlfile import read_mapping, validation_message
+from seafmu.yamlfile import load_value, read_mapping, validation_message
 
 REPO = Path(__file__).resolve().parents[1]
 SCENARIO_DIR = REPO / "scenarios"
@@ -212,6 +212,11 @@ def scenario_path(name_or_path: str | Path | None) -> Path:
     candidate = SCENARIO_DIR / f"{name_or_path}.yaml"
     if p.suffix in ("", ) and candidate.is_file():
         return candidate
+    if not str(name_or_path).strip():  # Path("") is the current folder
+        raise ScenarioError("scenario '': empty name; give a scenario file or a shipped scenario's name")
+    if p.exists():  # there, but not a file to read: say so rather than 'no such file'
+        what = "a folder" if p.is_dir() else "not a regular file (a device, pipe or socket)"
+        raise ScenarioError(f"{p}: is {what}, not a scenario file")
     names = sorted(q.stem for q in SCENARIO_DIR.glob("*.yaml"))
     raise ScenarioError(f"scenario '{name_or_path}': no such file or shipped scenario"
                         f"{did_you_mean(str(name_or_path), names)} (shipped: {', '.join(names)})")
@@ -253,8 +258,8 @@ def parse_override(text: str) -> Override:
     if not raw.strip():
         raise ScenarioError(f"--set {text}: no value after '='")
     try:
-        value = yaml.safe_load(raw)
-    except yaml.YAMLError:
+        value = load_value(raw)  # numbers as the files read them: 010 is 10, 0x10 is text
+    except (yaml.YAMLError, ValueError):  # ValueError: an integer of more than 4300 digits
         value = raw.strip()
     if isinstance(value, str):  # '0.2m/s' is the unit table's '0.2 m/s'
         value = value.strip()
@@ -595,6 +600,8 @@ def resolve(model: ScenarioModel, path: Path, labels: dict[str, str] | None = No
             fmu_file = None
         else:
             fmu_file = (path.parent / e.fmu).resolve() if not Path(e.fmu).is_absolute() else Path(e.fmu)
+            if fmu_file.is_dir():  # an unpacked FMU's folder, say: it is run from its .fmu archive
+                raise _fail(path, f"{where}.fmu", f"{fmu_file} is a folder, not an FMU file")
             if not fmu_file.is_file():
                 raise _fail(path, f"{where}.fmu", f"no such FMU file {fmu_file}")
             try:
@@ -688,6 +695,7 @@ def resolve(model: ScenarioModel, path: Path, labels: dict[str, str] | None = No
                             f"{src}; a value given here would be overwritten (disconnect it to set it)")
 
     events = []
+    first_set: dict[tuple[int, str, str], int] = {}  # (step, instance, variable) -> the event setting it
     for k, ev in enumerate(model.events):
         where = labels.get(f"events[{k}]", f"events[{k}]")
         inst, var, info = lookup(ev.set, where, ("input", "parameter"))
@@ -700,6 +708,10 @@ def resolve(model: ScenarioModel, path: Path, labels: dict[str, str] | None = No
         k_ev = ev.time / model.step
         if abs(k_ev - round(k_ev)) > 1e-6:
             raise _fail(path, where, f"time {ev.time} s is not on the step grid ({model.step} s)")
+        earlier = first_set.setdefault((round(k_ev), inst, var), k)
+        if earlier != k:  # both apply at the same step: one of them would be lost without a word
+            raise _fail(path, where, f"sets {inst}.{var} at {ev.time:g} s, as "
+                        f"{labels.get(f'events[{earlier}]', f'events[{earlier}]')} does")
         value_field = where if where.startswith("--set") else f"{where}.value"
         value = _convert(ev.value, info, path, value_field)
         _check_text(by_name[inst].kind, var, value, path, value_field, spec)

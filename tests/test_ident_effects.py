@@ -245,3 +245,54 @@ def test_no_effect_name_switches_in_the_fitters() -> None:
     for mod in ("static", "timeseries", "synthetic", "plant_trials", "diagnosis", "catalogue"):
         text = (root / f"{mod}.py").read_text()
         assert not pattern.search(text), mod
+
+
+def _offset_thrust_table(folder: Any, seed: int) -> Any:
+    """A bollard-pull table, T = 4 n + 3 N (a load-cell offset), n = -20..20 rev/s, 1.5 % noise."""
+    from seafmu.identification.trial import load_trial
+
+    rng = np.random.default_rng(seed)
+    n = np.arange(-20.0, 20.1, 2.0)
+    T = 4.0 * n + 3.0
+    T = T + rng.normal(scale=0.015 * (T.max() - T.min()), size=n.size)
+    rows = "".join(f"{a:g},{b:.5f}\n" for a, b in zip(n, T, strict=True))
+    (folder / "table.csv").write_text("shaft_rev_s,thrust_N\n" + rows)
+    (folder / "trial.yaml").write_text(
+        "name: offset\nkind: static\ntable: thrust_rpm\ndof: surge\nfiles: [table.csv]\ncolumns:\n"
+        "  input: {column: shaft_rev_s, unit: rev/s}\n  output: {column: thrust_N, unit: N}\n"
+        "baseline: linear\n")
+    return load_trial(folder / "trial.yaml")
+
+
+def test_unphysical_names_a_parameter_outside_its_range_that_the_baseline_kept() -> None:
+    """Only a whole 95 % CI outside the physical range counts (one reaching into it is noise), and
+    only where the baseline's did not: the baseline's own is its warning, not the effect's fault."""
+    from types import SimpleNamespace
+
+    from seafmu.identification.diagnosis import unphysical
+
+    def fit(**ci: tuple[float, float]) -> Any:
+        return SimpleNamespace(ci95=ci, params={k: 0.5 * (lo + hi) for k, (lo, hi) in ci.items()})
+
+    base = fit(d_L=(0.5, 2.0), m_a=(-3.0, -1.0))
+    assert unphysical(base, fit(d_Q=(-9.5, -6.6), m_a=(-2.0, -1.0), d_L=(-3.0, -1.0))) == [
+        "d_Q = -8.05 (95 % CI [-9.5, -6.6]; >= 0 physically)"]  # m_a: the baseline's; d_L: a warning
+    assert unphysical(base, fit(d_Q=(-1.0, 0.5), k_q=(-0.25, -0.2))) == [
+        "k_q = -0.225 (95 % CI [-0.25, -0.2]; >= 0 physically)"]
+    assert unphysical(base, fit(Y_v=(0.1, 0.3), N_r=(-2.0, 0.1))) == [
+        "Y_v = 0.2 (95 % CI [0.1, 0.3]; <= 0 physically)"]
+    assert unphysical(base, fit(d_Q=(0.0, 1.0), gamma=(-1.0, 3.0))) == []
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_a_load_cell_offset_is_named_a_constant_force(tmp_path: Any, seed: int) -> None:
+    """A bollard table with an offset names constant_force, and no accepted candidate is unphysical
+    (the gate's reason is given where one is blocked)."""
+    from seafmu.identification.diagnosis import diagnose, unphysical
+
+    d = diagnose(_offset_thrust_table(tmp_path, seed))
+    assert d.cause is not None and d.cause.effect == "constant_force"
+    assert d.cause.fit.params["F_0"] == pytest.approx(3.0, abs=1.2)
+    for c in d.candidates:
+        if c.fit is not None and unphysical(d.baseline, c.fit):
+            assert not c.accepted and "unphysical model" in c.reason

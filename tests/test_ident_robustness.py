@@ -587,3 +587,98 @@ def test_a_decay_jumping_from_zero_to_1e14_is_one_line_error_not_a_crash(tmp_pat
     with pytest.raises(TrialError, match="overflowed") as exc:
         identify(load_trial(_trial(tmp_path, csv)))
     assert "\n" not in str(exc.value)
+
+
+# -- maneuver logs: every row as wide as the header, no '_' in numbers, no doubled column names ----
+
+def _edit_row(src: Path, dst: Path, row: int, fn) -> Path:  # type: ignore[no-untyped-def]
+    """The log with data row ``row`` (1-based; the file has one '#' line and the header first)
+    replaced by ``fn(cells)``."""
+    lines = src.read_text().splitlines()
+    cells = lines[row + 1].split(",")
+    lines[row + 1] = ",".join(fn(cells))
+    dst.write_text("\n".join(lines) + "\n")
+    return dst
+
+
+def _comma(cells: list[str]) -> list[str]:  # u = 0.1234 written 0,1234
+    assert "." in cells[4]
+    return [*cells[:4], *cells[4].split(".", 1), *cells[5:]]
+
+
+def _doubled(name: str, src: Path, dst: Path) -> Path:
+    """The log with one more column named ``name``: twice the u column (a plausible other log)."""
+    lines = src.read_text().splitlines()
+    out = [lines[0], lines[1] + f",{name}"]
+    out += [ln + f",{2 * float(ln.split(',')[4])!r}" for ln in lines[2:]]
+    dst.write_text("\n".join(out) + "\n")
+    return dst
+
+
+ROW_CASES = {
+    "decimal_comma": (_comma, "data row 20 has 11 fields, the header has 10"),
+    "extra_field": (lambda c: [*c, "999"], "data row 20 has 11 fields, the header has 10"),
+    "short_row": (lambda c: c[:-1], "data row 20 has 9 fields, the header has 10"),
+    "underscore": (lambda c: [*c[:4], "0_5", *c[5:]], "data row 20, column 'u': not a number ('0_5')"),
+    "underscore_exp": (lambda c: [*c[:4], "3_3e-1", *c[5:]],
+                       "data row 20, column 'u': not a number ('3_3e-1')"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(ROW_CASES))
+def test_a_maneuver_row_that_does_not_fit_the_header_is_one_line(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], logs: dict[str, Path], case: str) -> None:
+    assert load_maneuver_csv(logs["amv_osf"], load_vessel("amv_osf")).n == 301  # the log as written loads
+    fn, expected = ROW_CASES[case]
+    path = _edit_row(logs["amv_osf"], tmp_path / "log.csv", 20, fn)
+    rc, err = _run(["identify", str(path), "--vessel", "amv_osf", "-o", str(tmp_path / "out")], capsys)
+    _assert_one_line(rc, err, f"{path}: {expected}")
+
+
+def test_underscores_are_refused_by_the_compiled_reader_too(tmp_path: Path, logs: dict[str, Path],
+                                                            monkeypatch: pytest.MonkeyPatch) -> None:
+    """numpy's loadtxt refuses '0_5' today; one that parsed cells with Python's float() (as older
+    numpy did) would take it as 5. With such a reader in place the log is still refused."""
+    def python_float_reader(lines: list[str], **_: object) -> np.ndarray:
+        return np.array([[float(c) for c in ln.split(",")] for ln in lines], ndmin=2)
+
+    monkeypatch.setattr(np, "loadtxt", python_float_reader)
+    vessel = load_vessel("amv_osf")
+    assert load_maneuver_csv(logs["amv_osf"], vessel).n == 301  # the stand-in reads a plain log
+    path = _edit_row(logs["amv_osf"], tmp_path / "log.csv", 7, lambda c: [*c[:5], "0_5", *c[6:]])
+    with pytest.raises(TrialError, match=r"log\.csv: data row 7, column 'v': not a number \('0_5'\)"):
+        load_maneuver_csv(path, vessel)
+
+
+def test_a_maneuver_column_named_twice_is_refused_when_it_is_read(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], logs: dict[str, Path]) -> None:
+    path = _doubled("u", logs["amv_osf"], tmp_path / "log.csv")
+    rc, err = _run(["identify", str(path), "--vessel", "amv_osf", "-o", str(tmp_path / "out")], capsys)
+    _assert_one_line(rc, err, f"{path}: column 'u' appears twice in the header")
+    unused = _doubled("note", logs["amv_osf"], tmp_path / "unused.csv")
+    unused = _doubled("note", unused, tmp_path / "unused2.csv")
+    assert load_maneuver_csv(unused, load_vessel("amv_osf")).n == 301  # a column nobody reads
+
+
+SUMMARY_CASES = {
+    "not_json": ("{not json", "not valid JSON (Expecting property name enclosed in double quotes at line 1, "
+                              "column 2)"),
+    "a_list": ("[1,2,3]", "expected a JSON object with a 'vessel' field, got a list"),
+    "no_vessel": ('{"scenario": "x"}', "has no 'vessel' field; give --vessel"),
+    "not_a_name": ('{"vessel": 3}', "vessel: expected a vessel name, got 3"),
+    "unknown": ('{"vessel": "titanic"}', "vessel: no such vessel 'titanic' (bundled: amv_osf, "),
+    "typo": ('{"vessel": "amv_os"}', "vessel: no such vessel 'amv_os'; did you mean 'amv_osf'?"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(SUMMARY_CASES))
+def test_a_corrupt_summary_json_beside_a_log_is_named(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                      logs: dict[str, Path], case: str) -> None:
+    """It was passed over ('needs --vessel (or a summary.json next to it...)' although one was
+    there), or its vessel failed later in an error naming no file."""
+    text, expected = SUMMARY_CASES[case]
+    log = tmp_path / "results.csv"
+    log.write_text(logs["amv_osf"].read_text())
+    (tmp_path / "summary.json").write_text(text)
+    rc, err = _run(["identify", str(log), "-o", str(tmp_path / "out")], capsys)
+    _assert_one_line(rc, err, f"{tmp_path / 'summary.json'}: {expected}")

@@ -138,3 +138,95 @@ def test_write_trial_round_trip(tmp_path: Path, effect: str) -> None:
         np.testing.assert_allclose(b.y, a.y, rtol=1e-7, atol=1e-9)
         if a.u is not None:
             np.testing.assert_allclose(b.u, a.u, rtol=1e-7, atol=1e-9)
+
+
+# -- CSV cells: every row as wide as the header, no '_' in numbers, no doubled column names ----------
+
+def _pendulum(tmp: Path, edit: str = "", csv_edit=None) -> Path:  # type: ignore[no-untyped-def]
+    """The shipped pendulum trial with its CSV beside it as data.csv; ``csv_edit`` maps the CSV's
+    lines (line 17 is ``0.2,0.33,-0.39399,-0.63058``) and ``edit`` replaces in the YAML."""
+    lines = (DATA / "pendulum_free_decay.csv").read_text().splitlines()
+    assert lines[16] == "0.2,0.33,-0.39399,-0.63058"
+    (tmp / "data.csv").write_text("\n".join(csv_edit(lines) if csv_edit else lines) + "\n")
+    text = (DATA / "pendulum_free_decay.yaml").read_text().replace("[pendulum_free_decay.csv]", "[data.csv]")
+    if edit:
+        old, new = edit.split("=>")
+        assert old in text
+        text = text.replace(old, new)
+    (tmp / "trial.yaml").write_text(text)
+    return tmp / "trial.yaml"
+
+
+def _line17(new: str):  # type: ignore[no-untyped-def]
+    return lambda lines: [*lines[:16], new, *lines[17:]]
+
+
+def test_the_unedited_pendulum_copy_loads(tmp_path: Path) -> None:
+    trial = load_trial(_pendulum(tmp_path))
+    assert trial.runs[0].y[5] == pytest.approx(0.33)
+
+
+@pytest.mark.parametrize("row", ["0.2,0,33,-0.39399,-0.63058", "0.2,0.33,-0.39399,-0.63058,999"])
+def test_a_row_wider_than_the_header_is_refused(tmp_path: Path, row: str) -> None:
+    """A decimal comma or a stray value shifted the columns silently (alpha -19.97 became +19.66)."""
+    with pytest.raises(TrialError) as err:
+        load_trial(_pendulum(tmp_path, csv_edit=_line17(row)))
+    assert str(err.value) == f"{tmp_path / 'data.csv'}: line 17 has 5 fields, the header has 4"
+
+
+def test_a_row_narrower_than_the_header_and_a_wide_first_row_are_refused(tmp_path: Path) -> None:
+    with pytest.raises(TrialError, match=r"data\.csv: line 17 has 3 fields, the header has 4$"):
+        load_trial(_pendulum(tmp_path, csv_edit=_line17("0.2,0.33,-0.39399")))
+
+    def first(lines: list[str]) -> list[str]:  # the first data row, line 12
+        return [*lines[:11], lines[11] + ",1", *lines[12:]]
+
+    with pytest.raises(TrialError, match=r"data\.csv: line 12 has 5 fields, the header has 4$"):
+        load_trial(_pendulum(tmp_path, csv_edit=first))
+
+
+def test_a_static_table_row_with_a_stray_field_is_refused(tmp_path: Path) -> None:
+    rows = [f"{60 * x},{12.63 * x}" for x in (0.5, 1, 1.5, 2)]
+    (tmp_path / "b.yaml").write_text(yaml.safe_dump({
+        "name": "bollard", "kind": "static", "dof": "surge", "files": ["b.csv"],
+        "columns": {"input": {"column": "n_rpm", "unit": "rpm"}, "output": {"column": "T", "unit": "N"}}}))
+    (tmp_path / "b.csv").write_text("n_rpm,T\n" + "\n".join(rows) + "\n")
+    assert load_trial(tmp_path / "b.yaml").runs[0].n == 4
+    rows[2] = "90,18,945"  # 18.945 N with a decimal comma
+    (tmp_path / "b.csv").write_text("n_rpm,T\n" + "\n".join(rows) + "\n")
+    with pytest.raises(TrialError, match=r"b\.csv: line 4 has 3 fields, the header has 2$"):
+        load_trial(tmp_path / "b.yaml")
+
+
+@pytest.mark.parametrize("cell", ["0_33", "3_3e-1"])
+def test_underscores_in_a_number_are_refused(tmp_path: Path, cell: str) -> None:
+    """float() reads '0_33' as 33 and '3_3e-1' as 3.3: a typo, not a measurement."""
+    with pytest.raises(TrialError) as err:
+        load_trial(_pendulum(tmp_path, csv_edit=_line17(f"0.2,{cell},-0.39399,-0.63058")))
+    assert str(err.value) == (f"{tmp_path / 'data.csv'}: line 17: column 'theta_rad' is not a number "
+                              f"('{cell}')")
+
+
+def test_a_column_named_twice_is_refused_when_the_trial_reads_it(tmp_path: Path) -> None:
+    def twice(name: str):  # type: ignore[no-untyped-def]
+        return lambda lines: [*lines[:10], lines[10] + f",{name}",
+                              *(ln + ",0.5" for ln in lines[11:] if ln)]
+
+    with pytest.raises(TrialError) as err:
+        load_trial(_pendulum(tmp_path, csv_edit=twice("theta_rad")))
+    assert str(err.value) == f"{tmp_path / 'data.csv'}: column 'theta_rad' appears twice in the header"
+    load_trial(_pendulum(tmp_path, csv_edit=lambda lines: twice("note")(twice("note")(lines))))
+
+
+def test_an_overflowing_fit_names_the_trial_file_and_the_output_unit(tmp_path: Path) -> None:
+    """The angle logged in rad but declared deg: the message names the file, the column and its
+    unit, and gives the range in that unit (0.39 deg for a swing of 22 deg)."""
+    from seafmu.identification.diagnosis import identify
+
+    path = _pendulum(tmp_path, edit="{column: theta_rad, unit: rad}=>{column: theta_rad, unit: deg}")
+    with pytest.raises(TrialError) as err:
+        identify(load_trial(path))
+    msg = str(err.value)
+    assert msg.startswith(f"{path}: columns.output (theta_rad, unit deg): the output-error fit "
+                          "overflowed"), msg
+    assert "theta_rad runs from 0.14 to 0.39 deg" in msg and "check the unit" in msg and "\n" not in msg

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -140,7 +141,7 @@ CASES = [
     ("too many steps", {"duration": 1e6},
      "step: 1e+06 s in steps of 0.05 s is 2e+07 steps; a run is limited to 1e+07 steps"),
     ("results too large for memory", {"duration": 1e5, "step": 0.01},
-     "step: 10000001 samples x 130 columns = 10.4 GB of results in memory; the limit is 1 GB"),
+     "step: 10000001 samples x 131 columns = 10.5 GB of results in memory; the limit is 1 GB"),
     ("record interval longer than the run", {"record_interval": 20},
      "record_interval: 20 s is longer than the duration 10 s"),
     ("step multiple longer than the run", {"fmus/observer/step_multiple": 400},
@@ -232,3 +233,114 @@ def test_hardware_plant_in_a_scenario(tmp_path: Path) -> None:
         load_scenario(_write(tmp_path, _mutate({"fmus/plant": {"hardware": "emulator_pty"}})))
     with pytest.raises(ScenarioError, match=r"fmus\.plant\.hardware: hardware profile 'nowhere'"):
         load_scenario(_write(tmp_path, _mutate({"fmus/plant": {"hardware": "nowhere"}})))
+
+
+# -- numbers as YAML 1.2 reads them, plausibility maxima, events, folders ---------------------------
+
+def _override(tmp_path: Path, text: str):
+    from seafmu.scenario import parse_override
+
+    return load_scenario(_write(tmp_path, BASE), [parse_override(text)])
+
+
+@pytest.mark.parametrize("text, value", [
+    ("controller.north_ref=010", 10.0),  # decimal, not octal 8
+    ("controller.north_ref=1e1", 10.0),
+    ("controller.north_ref=-.5", -0.5),
+    ("plant.seed=010", 10),
+])
+def test_set_reads_plain_decimal_numbers(tmp_path: Path, text: str, value: float) -> None:
+    inst, var = text.split("=")[0].split(".")
+    assert _override(tmp_path, text).instance(inst).parameters[var] == value
+
+
+@pytest.mark.parametrize("text, expected", [
+    ("controller.north_ref=1_0", "--set controller.north_ref=1_0: expected a number or '<number> <unit>', "
+                                 "got '1_0'"),
+    ("controller.north_ref=1:30", "--set controller.north_ref=1:30: expected a number"),
+    ("plant.current_speed=0x10", "--set plant.current_speed=0x10: unknown unit"),
+    ("plant.seed=0b11", "--set plant.seed=0b11: expected a whole number, got '0b11'"),
+    ("plant.seed=0o7", "--set plant.seed=0o7: expected a whole number, got '0o7'"),
+])
+def test_set_refuses_yaml11_numbers(tmp_path: Path, text: str, expected: str) -> None:
+    with pytest.raises(ScenarioError, match=re.escape(expected)):
+        _override(tmp_path, text)
+
+
+def test_scenario_file_numbers_are_decimal(tmp_path: Path) -> None:
+    text = yaml.safe_dump(BASE, sort_keys=False).replace("current_speed: 0.1 m/s", "down_0: 010")
+    assert load_scenario(_write(tmp_path, text)).instance("plant").parameters["down_0"] == 10.0
+    with pytest.raises(ScenarioError, match=r"fmus\.plant\.parameters\.down_0: expected a number"):
+        load_scenario(_write(tmp_path, text.replace("down_0: 010", "down_0: 1_0")))
+    with pytest.raises(ScenarioError, match=r"fmus\.plant\.parameters\.seed: expected a whole number"):
+        load_scenario(_write(tmp_path, text.replace("down_0: 010", "seed: 0x10")))
+    with pytest.raises(ScenarioError, match=r"duration: Input should be a valid number"):
+        load_scenario(_write(tmp_path, text.replace("duration: 10.0", "duration: 1:30")))
+
+
+def test_scenario_and_vessel_loaders_read_numbers_alike() -> None:
+    """components/vessel_spec.py keeps its own copy of the YAML 1.2 number rules (components/ does not
+    import seafmu/): both read every case the same, and unlike PyYAML's YAML 1.1 SafeLoader."""
+    from seafmu.components.vessel_spec import _Loader
+    from seafmu.yamlfile import load_value
+
+    cases = {"010": 10, "-7": -7, "+3": 3, "1e30": 1e30, "1.5E-3": 1.5e-3, "2.": 2.0, ".5": 0.5,
+             ".inf": float("inf"), "-.Inf": -float("inf"), "1_0": "1_0", "1:30": "1:30", "0x10": "0x10",
+             "0b11": "0b11", "0o7": "0o7", "1e": "1e", "inf": "inf", "true": True, "~": None}
+    for text, want in cases.items():
+        got = (load_value(text), yaml.load(text, Loader=_Loader))
+        assert got == (want, want) and all(type(g) is type(want) for g in got), text
+    nan = (load_value(".nan"), yaml.load(".NaN", Loader=_Loader))
+    assert all(x != x for x in nan)
+    assert yaml.safe_load("010") == 8  # PyYAML's own loader is left as it is
+    assert issubclass(_Loader, getattr(yaml, "CSafeLoader", yaml.SafeLoader))  # libyaml kept
+
+
+@pytest.mark.parametrize("text, expected", [
+    ("plant.current_speed=1e30", "1e+30 m/s is above the maximum 10"),
+    ("plant.current_speed=11 m/s", "11 m/s is above the maximum 10"),
+    ("plant.noise_scale=1e30", "1e+30 is above the maximum 100"),
+    ("plant.current_variation=1e10", "1e+10 m/s is above the maximum 5"),
+])
+def test_plant_parameters_have_plausible_maxima(tmp_path: Path, text: str, expected: str) -> None:
+    with pytest.raises(ScenarioError, match=re.escape(f"--set {text}: {expected}")):
+        _override(tmp_path, text)
+
+
+def test_plant_maxima_themselves_are_accepted(tmp_path: Path) -> None:
+    from seafmu.scenario import parse_override
+
+    sets = ["plant.current_speed=10", "plant.noise_scale=100", "plant.current_variation=5"]
+    sc = load_scenario(_write(tmp_path, BASE), [parse_override(s) for s in sets])
+    p = sc.instance("plant").parameters
+    assert (p["current_speed"], p["noise_scale"], p["current_variation"]) == (10.0, 100.0, 5.0)
+
+
+def test_two_events_setting_one_variable_at_one_time(tmp_path: Path) -> None:
+    from seafmu.scenario import parse_override
+
+    same = [{"time": 1, "set": "controller.north_ref", "value": "1 m"},
+            {"time": 1.0, "set": "controller.north_ref", "value": "2 m"}]
+    with pytest.raises(ScenarioError, match=re.escape(
+            "events[1]: sets controller.north_ref at 1 s, as events[0] does")):
+        load_scenario(_write(tmp_path, _mutate({"events": same})))
+    with pytest.raises(ScenarioError, match=re.escape(
+            "--set controller.north_ref@5=3 m: sets controller.north_ref at 5 s, as events[0] does")):
+        load_scenario(_write(tmp_path, BASE), [parse_override("controller.north_ref@5=3 m")])
+    # another time, or another variable at the same time, is fine
+    other = [same[0], {**same[1], "time": 2}, {**same[1], "set": "controller.east_ref"}]
+    sc = load_scenario(_write(tmp_path, _mutate({"events": other})))
+    assert [(t, v) for t, _, v, _ in sc.events] == [(1.0, "north_ref"), (1.0, "east_ref"), (2.0, "north_ref")]
+
+
+def test_a_folder_is_neither_an_fmu_nor_a_vessel_file(tmp_path: Path) -> None:
+    (tmp_path / "unpacked").mkdir()
+    with pytest.raises(ScenarioError, match=re.escape(
+            f"fmus.allocator.fmu: {tmp_path / 'unpacked'} is a folder, not an FMU file")):
+        load_scenario(_write(tmp_path, _mutate({"fmus/allocator": {"fmu": "unpacked"}})))
+    for given in ("unpacked", "unpacked.yaml"):
+        if given.endswith(".yaml"):
+            (tmp_path / given).mkdir()
+        with pytest.raises(ScenarioError, match=re.escape(
+                f"fmus.plant.parameters.vessel_file: {tmp_path / given}: is a folder, not a vessel file")):
+            load_scenario(_write(tmp_path, _mutate({"fmus/plant/parameters/vessel_file": given})))

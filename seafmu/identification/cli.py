@@ -24,6 +24,7 @@ from seafmu.identification.trial import (
     csv_trial,
     load_trial,
 )
+from seafmu.outdir import OutputFolderError, claim_output_folder, nonempty_path
 
 if TYPE_CHECKING:  # the fitting stack (scipy) loads only when a command runs
     from seafmu.identification.fitting import FitResult
@@ -34,12 +35,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("trial", help="trial YAML (see docs/identification.md), or a maneuver CSV such as "
                                       "a `seafmu run` results.csv")
-    common.add_argument("-o", "--output", help="output folder (default: results/<trial name>)")
-    common.add_argument("--vessel",
+    common.add_argument("-o", "--output", type=nonempty_path,
+                        help="output folder (default: results/<trial name>)")
+    common.add_argument("--vessel", type=_nonempty,
                         help="vessel name or file (maneuver CSV, write-back); overrides the trial")
-    common.add_argument("--baseline", help="override the trial's baseline model (e.g. linear_quadratic)")
+    common.add_argument("--baseline", type=_nonempty,
+                        help="override the trial's baseline model (e.g. linear_quadratic)")
     common.add_argument("--json", action="store_true", help="print the result as JSON on stdout")
-    common.add_argument("--write-vessel", metavar="OUT_YAML",
+    common.add_argument("--write-vessel", metavar="OUT_YAML", type=nonempty_path,
                         help="write the identified parameters into a copy of the vessel file")
     i = subparsers.add_parser("identify", parents=[common],
                               help="fit a measured trial's baseline model (parameters, CIs, NRMSE, AIC)")
@@ -47,8 +50,23 @@ def register(subparsers: argparse._SubParsersAction) -> None:  # type: ignore[ty
     d = subparsers.add_parser("diagnose", parents=[common],
                               help="find what the baseline model gets wrong, name the effect, "
                                    "measure the gain")
-    d.add_argument("--effects", help="comma-separated subset of the effect catalogue (default: all)")
+    d.add_argument("--effects", type=_effects,
+                   help="comma-separated subset of the effect catalogue (default: all)")
     d.set_defaults(fn=cmd_diagnose)
+
+
+def _nonempty(text: str) -> str:
+    """An argparse type: an empty --vessel or --baseline would silently mean 'not given'."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("empty; give a name or leave the flag out")
+    return text
+
+
+def _effects(text: str) -> str:
+    """An argparse type: an empty --effects list would silently mean every effect."""
+    if not any(e.strip() for e in text.split(",")):
+        raise argparse.ArgumentTypeError("empty list; name at least one effect or leave the flag out")
+    return text
 
 
 def load(args: argparse.Namespace) -> Trial:
@@ -61,6 +79,8 @@ def load(args: argparse.Namespace) -> Trial:
     path = Path(args.trial)
     if args.write_vessel:
         out = Path(args.write_vessel)
+        if out.parent.exists() and not out.parent.is_dir():
+            raise TrialError(f"--write-vessel {out}: {out.parent} is a file, not a folder")
         if not out.parent.is_dir():
             raise TrialError(f"--write-vessel {out}: the folder {out.parent} does not exist "
                              "(it is not created)")
@@ -130,11 +150,35 @@ def one_line(msg: str) -> str:
 
 
 def _vessel_from_summary(csv_path: Path) -> str | None:
+    """The vessel of the run that wrote the log, from the summary.json beside it; None when there is
+    none. A summary.json that is there but unusable is an error naming it: passing over it would
+    blame a missing file, or a later error would name no file at all."""
+    from seafmu.components.names import did_you_mean
+    from seafmu.components.vessel_spec import bundled_vessels, vessel_path
+    from seafmu.identification.trial import echo_cell, read_text
+
     summary = csv_path.parent / "summary.json"
-    try:
-        return str(json.loads(summary.read_text())["vessel"])
-    except (OSError, ValueError, KeyError, TypeError):
+    if not summary.exists():
         return None
+    try:
+        doc = json.loads(read_text(summary, "summary"))
+    except json.JSONDecodeError as exc:
+        raise TrialError(f"{summary}: not valid JSON ({exc.msg} at line {exc.lineno}, column {exc.colno}); "
+                         "fix it or give --vessel") from None
+    if not isinstance(doc, dict) or "vessel" not in doc:
+        what = "has no 'vessel' field" if isinstance(doc, dict) else \
+            f"expected a JSON object with a 'vessel' field, got a {type(doc).__name__}"
+        raise TrialError(f"{summary}: {what}; give --vessel")
+    vessel = doc["vessel"]
+    if not isinstance(vessel, str) or not vessel.strip():
+        shown = json.dumps(vessel)  # as written in the file: 3, "", null
+        shown = shown if len(shown) <= 24 else shown[:21] + "..."
+        raise TrialError(f"{summary}: vessel: expected a vessel name, got {shown}; give --vessel")
+    if not vessel_path(vessel).is_file():
+        bundled = bundled_vessels()
+        raise TrialError(f"{summary}: vessel: no such vessel {echo_cell(vessel)}"
+                         f"{did_you_mean(vessel, bundled)} (bundled: {', '.join(bundled)}); give --vessel")
+    return vessel
 
 
 def _out(args: argparse.Namespace, trial: Trial) -> Path:
@@ -172,6 +216,11 @@ def _run(args: argparse.Namespace, diagnose: bool) -> int:
               f"{one_line(str(exc))[:200]})", file=sys.stderr)
         return 2
     out = _out(args, trial)
+    try:  # checked after the fit, whose errors name the data; created and marked before any write
+        claim_output_folder(out)
+    except OutputFolderError as exc:
+        print(f"seafmu: error: {one_line(str(exc))}", file=sys.stderr)
+        return 2
     if isinstance(result, dg.Diagnosis):
         report = rp.write_diagnosis_report(result, out)
         fit = result.extended
@@ -232,7 +281,9 @@ def close_loop(trial: Trial, fit: FitResult, out_path: Path, method: str,
 
 def main(argv: list[str] | None = None) -> int:
     """Stand-alone entry (python -m seafmu.identification.cli ...) until seafmu.cli registers us."""
-    parser = argparse.ArgumentParser(prog="seafmu", description="identification and diagnosis")
+    from seafmu.cli import Parser  # seafmu's one-line argument errors
+
+    parser = Parser(prog="seafmu", description="identification and diagnosis")
     register(parser.add_subparsers(dest="command", required=True))
     args = parser.parse_args(argv)
     from seafmu.components.vessel_spec import VesselFileError

@@ -477,8 +477,49 @@ def judge(name: str, base: FitResult, fit: FitResult, trial: Trial, rule: Rule,
     if at_bound:
         reasons.append(f"{', '.join(at_bound)} at the bound of its range: the data push the effect beyond "
                        "what it can mean")
+    wrong = unphysical(base, fit)
+    if wrong:
+        reasons.append(f"unphysical model: {'; '.join(wrong)}")
     return Candidate(name, fit, ratio, dAIC, all(sig_each), not reasons, "; ".join(reasons) or "accepted",
                      seconds, names, groups=groups, significant_each=tuple(sig_each))
+
+
+# Where fitted parameters mean something physical (a parameter outside: not a property of any hull
+# or thruster): quadratic damping (d_Q, the pendulum's gamma) and added mass (m_a) >= 0, restoring
+# stiffness (c; the pendulum's alpha) on its side of zero; thrust_quadratic's n|n| term k_q >= 0
+# (its claim is a propeller's law; thrust growing slower than linearly is thrust_power's p_n < 1,
+# which says so); the sway-yaw damping derivatives Y_v, N_r <= 0 (Fossen's sign). Not the linear
+# damping (d_L, the pendulum's beta): beside friction or a quadratic term a negative one still
+# dissipates over the speeds a trial covers (the pendulum's friction with its offset fits beta < 0),
+# and the sources' own fits have it: brief section 2 makes it a warning. Ranges an effect's own fit
+# bounds keep (thrust_asymmetry's eta_rev > -1) are not repeated.
+PHYSICAL_RANGE: dict[str, tuple[float, float]] = {
+    "d_Q": (0.0, math.inf), "m_a": (0.0, math.inf), "gamma": (0.0, math.inf), "c": (0.0, math.inf),
+    "alpha": (-math.inf, 0.0), "k_q": (0.0, math.inf), "Y_v": (-math.inf, 0.0), "N_r": (-math.inf, 0.0)}
+
+
+def unphysical(base: FitResult, fit: FitResult) -> list[str]:
+    """The extension's parameters whose whole 95 % CI lies outside their physical range where the
+    baseline's did not (a baseline's own is a warning of the baseline, brief section 2). Why they
+    block the effect: an extension that fits only with, say, a drag that pushes harder along the
+    motion the faster it goes (d_Q < 0) or a thrust law below linear claimed as a propeller's
+    explains the data by a model that cannot be right."""
+    out = []
+    for p, (lo_ok, hi_ok) in PHYSICAL_RANGE.items():
+        ci, v = fit.ci95.get(p), fit.params.get(p)
+        if ci is None or v is None or not _outside(ci, lo_ok, hi_ok):
+            continue
+        b = base.ci95.get(p)
+        if b is not None and _outside(b, lo_ok, hi_ok):
+            continue
+        side = f">= {lo_ok:g}" if math.isfinite(lo_ok) else f"<= {hi_ok:g}"
+        out.append(f"{p} = {v:.4g} (95 % CI [{ci[0]:.4g}, {ci[1]:.4g}]; {side} physically)")
+    return out
+
+
+def _outside(ci: tuple[float, float], lo_ok: float, hi_ok: float) -> bool:
+    lo, hi = ci
+    return bool(hi < lo_ok or lo > hi_ok)
 
 
 def _at_bound(x: float, b: tuple[float, float]) -> bool:

@@ -671,9 +671,28 @@ def _weights(model: TSModel, preps: list[_Prep]) -> np.ndarray | None:
 _JAC_MAX = 1e100
 
 
-def _span(preps: list[_Prep]) -> float:
-    """Largest output step between neighbouring samples (for the overflow message)."""
-    return max((float(np.max(np.abs(np.diff(p.y, axis=0)))) for p in preps if len(p.y) > 1), default=0.0)
+def _overflow_message(trial: Trial) -> str:
+    """The overflow error, naming the trial file and each output column with its unit, and the
+    outputs' range and largest step in the file's unit: numbers the user can hold against the data
+    (an angle logged in rad but declared deg swings by a fraction of a degree)."""
+    from seafmu.identification.trial import _unit_si
+
+    ys = [np.reshape(r.y, (r.n, -1)) for r in trial.runs if r.n]
+    y = np.vstack(ys) if ys else np.zeros((0, 1))
+    where, facts = [], []
+    for j, role in enumerate(("output", "output2")[: y.shape[1]]):
+        col, unit = trial.columns.get(role), trial.units.get(role)
+        factor = _unit_si(unit)[1] if unit else 1.0
+        unit = unit or "SI units"
+        where.append(f"columns.{role} ({col}, unit {unit})" if col else role)
+        v = y[:, j] / factor
+        steps = [float(np.max(np.abs(np.diff(np.reshape(r.y, (r.n, -1))[:, j])))) / factor
+                 for r in trial.runs if r.n > 1]
+        if v.size:
+            facts.append(f"{col or role} runs from {np.min(v):.3g} to {np.max(v):.3g} {unit} in steps of up "
+                         f"to {max(steps, default=0.0):.3g} {unit}")
+    return (f"{trial.source or trial.name}: {', '.join(where)}: the output-error fit overflowed"
+            f"{' (' + '; '.join(facts) + ')' if facts else ''}: check the unit and the values")
 
 
 def fit_timeseries(trial: Trial, model: TSModel, start: dict[str, float] | None = None,
@@ -723,9 +742,7 @@ def fit_timeseries(trial: Trial, model: TSModel, start: dict[str, float] | None 
                 raise
             sol = None
     if sol is None or not np.all(np.abs(sol.jac) < _JAC_MAX):  # also catches NaN
-        raise TrialError(f"{trial.name}: the output-error fit overflowed (the outputs jump by "
-                         f"{_span(sp.fit):.3g} within a few samples): check the output column's values "
-                         "and unit")
+        raise TrialError(_overflow_message(trial))
     theta = sol.x
     vals = model.at(theta[:nfree])
     resid = sol.fun

@@ -323,12 +323,27 @@ def read_text(path: Path, what: str = "file") -> str:
     return text
 
 
+def cell_float(cell: str) -> float:
+    """float() of a CSV cell; ValueError also for '_' digit separators, which float() takes ('0_5'
+    is 5, '3_3e-1' is 3.3) but are a typo in measured data (seafmu.units.is_number refuses them too)."""
+    if "_" in cell:
+        raise ValueError(cell)
+    return float(cell)
+
+
 def is_number(cell: str) -> bool:
     try:
-        float(cell)
+        cell_float(cell)
     except ValueError:
         return False
     return True
+
+
+def field_count_error(path: Path | str, where: str, fields: int, expected: int) -> TrialError:
+    """A row with more or fewer fields than the header (a decimal comma '0,33', a stray value):
+    reading it by position would shift the columns silently."""
+    return TrialError(f"{path}: {where} has {fields} field{'s' if fields != 1 else ''}, the header has "
+                      f"{expected}")
 
 
 def echo_cell(cell: str) -> str:
@@ -372,9 +387,12 @@ def read_table(path: Path) -> tuple[list[str], list[list[str]], list[int], list[
         raise TrialError(f"{path}: not a CSV file ({exc})") from None
     if header is None:
         raise TrialError(f"{path}: no header row (expected column names after the '#' comment lines)")
-    if len(header) < 2 or (rows and (len(rows[0]) != len(header) or not any(is_number(c) for c in rows[0]))):
+    if len(header) < 2 or (rows and not any(is_number(c) for c in rows[0])):
         raise TrialError(f"{path}: not a CSV data table (expected optional '#' lines, a header row of "
                          "column names, then rows of numbers separated by commas)")
+    for row, lineno in zip(rows, lines, strict=True):  # every row, not just the first
+        if len(row) != len(header):
+            raise field_count_error(path, f"line {lineno}", len(row), len(header))
     return header, rows, lines, comments
 
 
@@ -382,12 +400,15 @@ def _column(path: Path, header: list[str], rows: list[list[str]], lines: list[in
             role: str) -> np.ndarray:
     if name not in header:
         raise TrialError(f"{path}: column '{name}' ({role}) not found; the file has: {_names(header)}")
+    twice = repeated(header, name)
+    if twice:
+        raise TrialError(f"{path}: {twice}")
     j = header.index(name)
     out = np.empty(len(rows))
     for i, row in enumerate(rows):
         cell = row[j].strip() if j < len(row) else ""
         try:
-            val = float(cell)
+            val = cell_float(cell)
         except ValueError:
             raise TrialError(f"{path}: line {lines[i]}: column '{name}' is not a number "
                              f"({echo_cell(cell)})") from None
@@ -396,6 +417,17 @@ def _column(path: Path, header: list[str], rows: list[list[str]], lines: list[in
                              f"(NaN/inf not allowed)")
         out[i] = val
     return out
+
+
+def repeated(header: list[str], name: str) -> str | None:
+    """Why a column the fit reads cannot be used when the header names it more than once (which
+    one is meant is a guess), else None. Callers ask only for the columns they read: repeated
+    names of unused columns change no result, and spreadsheet exports often repeat them (empty or
+    note columns)."""
+    k = header.count(name)
+    if k < 2:
+        return None
+    return f"column '{name}' appears {'twice' if k == 2 else f'{k} times'} in the header"
 
 
 def check_values(path: Path | str, name: str, x: np.ndarray, lines: list[int] | None = None) -> None:

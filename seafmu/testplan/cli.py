@@ -6,6 +6,29 @@ import argparse
 import sys
 from pathlib import Path
 
+from seafmu.outdir import OutputFolderError, check_output_folder, nonempty_path
+
+# --seed goes to the plant's seed parameter: an FMI Integer (32 bits) with minimum 0. Checked by the
+# parser: the plant refused it only after the first trial's scenario was written.
+SEED_RANGE = (0, 2**31 - 1)
+
+
+def _seed(text: str) -> int:
+    """An argparse type: a seed in SEED_RANGE."""
+    low, high = SEED_RANGE
+    try:
+        seed = int(text)
+    except ValueError:
+        seed = low - 1
+    if not low <= seed <= high:
+        raise argparse.ArgumentTypeError(f"must be a whole number from {low} to {high} (the plant's "
+                                         f"sensor-noise seed), got {text}")
+    return seed
+
+
+def _folder(text: str) -> Path:
+    return Path(nonempty_path(text))  # Path("") would be the current folder
+
 
 def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Register the ``testplan`` sub-command."""
@@ -20,9 +43,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParse
                    "supply)")
     p.add_argument("--hardware", metavar="PROFILE", help="run against a vessel through this hardware link "
                    "profile (real time) instead of the plant")
-    p.add_argument("-o", "--output", type=Path, help="output folder (default results/testplan_<vessel>)")
+    p.add_argument("-o", "--output", type=_folder, help="output folder (default results/testplan_<vessel>)")
     p.add_argument("--fmu", action="store_true", help="run the plant and GNC as FMUs (default: in-process)")
-    p.add_argument("--seed", type=int, default=1, help="sensor-noise seed of the plant (default 1)")
+    p.add_argument("--seed", type=_seed, default=1, help="sensor-noise seed of the plant (default 1)")
     p.add_argument("--axes", metavar="AXIS[,AXIS]", help="run only these trials (surge, sway, yaw, roll, "
                    "pitch; default all the vessel has; with --hardware: surge, sway, yaw)")
     p.add_argument("--scale", type=float, default=1.0, help="multiply every phase duration by this "
@@ -67,9 +90,15 @@ def run(args: argparse.Namespace) -> int:
               file=sys.stderr)
         return 2
     try:
+        check_output_folder(out)  # before the vessel is loaded or anything written
+    except OutputFolderError as exc:
+        print(f"seafmu: error: {exc}", file=sys.stderr)
+        return 2
+    try:
         res = run_testplan(vessel, out, hardware=args.hardware, mode="fmu" if args.fmu else "inprocess",
                            seed=args.seed, scale=args.scale, axes=axes)
-    except (TestplanError, VesselFileError, SimulationError, ScenarioError, ValueError, OSError) as exc:
+    except (TestplanError, VesselFileError, SimulationError, ScenarioError, ValueError, OSError,
+            OutputFolderError) as exc:
         print(f"seafmu: error: testplan {vessel}: {' '.join(str(exc).split())}", file=sys.stderr)
         return 2
     print(f"testplan {vessel}: {len(res.plans)} trials in {res.wall:.1f} s")
@@ -83,7 +112,9 @@ def run(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """Stand-alone entry (``python -m seafmu.testplan.cli``) until ``seafmu testplan`` is wired."""
-    parser = argparse.ArgumentParser(prog="seafmu")
+    from seafmu.cli import Parser  # seafmu's one-line argument errors
+
+    parser = Parser(prog="seafmu")
     sub = parser.add_subparsers(dest="command", required=True)
     add_parser(sub)
     return run(parser.parse_args(["testplan", *(argv if argv is not None else sys.argv[1:])]))

@@ -12,6 +12,7 @@ import numpy as np
 from seafmu.components.vessel_spec import VesselSpec, load_vessel
 from seafmu.identification.trial import write_trial
 from seafmu.identification.writeback import write_back
+from seafmu.outdir import claim_output_folder
 from seafmu.scenario import ScenarioError
 from seafmu.testplan.design import TrialPlan, plan
 from seafmu.testplan.fit import AxisResult, coefficient_names, coupled_terms, identify_axis
@@ -165,7 +166,7 @@ def run_testplan(vessel_name: str, out: Path, hardware: str | None = None, mode:
     plans = select_axes(plan(vessel, scale), axes, hardware, vessel.name)
     if not plans:
         raise TestplanError(f"vessel '{vessel.name}': no axis the test plan can excite")
-    out.mkdir(parents=True, exist_ok=True)
+    claim_output_folder(out)  # not a folder of the user's own files; marked as seafmu's before the trials
     measurements = {}
     # a plan shortened too far: phases that end before their events, trials with no sample to fit
     short = f"--scale {scale:g} leaves the trials too short"
