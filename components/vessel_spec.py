@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import hashlib
 import pickle
-import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,53 +24,16 @@ import yaml
 
 from . import registry
 from .names import did_you_mean
+from .yaml_numbers import decimal_numbers
 
 _Base: Any = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
-# YAML 1.2 core schema numbers, as seafmu/yamlfile.py reads the scenario files (components/ does not
-# import seafmu/; tests/test_scenario_errors.py holds the two equal).
-_INT_TAG, _FLOAT_TAG = "tag:yaml.org,2002:int", "tag:yaml.org,2002:float"
-_DECIMAL_INT = re.compile(r"[-+]?[0-9]+\Z")
-_DECIMAL_FLOAT = re.compile(r"(?:[-+]?(?:(?:[0-9]+\.[0-9]*|\.[0-9]+)(?:[eE][-+]?[0-9]+)?"
-                            r"|[0-9]+[eE][-+]?[0-9]+)|[-+]?\.(?:inf|Inf|INF)|\.(?:nan|NaN|NAN))\Z")
-
-
 class _Loader(_Base):  # type: ignore[misc, valid-type]
     """libyaml (~9x faster than the pure-Python loader: every run and every sweep case reads a vessel
-    file) with YAML 1.2 numbers: the int and float resolvers (Python level, also for the C loader)
-    replaced, so 0x10, 0b11, 1_0 and 1:30 stay text and 010 is 10, not octal 8."""
+    file) with YAML 1.2 numbers (``yaml_numbers``: 0x10, 0b11, 1_0 and 1:30 stay text, 010 is 10)."""
 
 
-_Loader.yaml_implicit_resolvers = {  # the class's own copy: yaml.SafeLoader's stay as they are
-    first: [(tag, rx) for tag, rx in pairs if tag not in (_INT_TAG, _FLOAT_TAG)]
-    for first, pairs in _Base.yaml_implicit_resolvers.items()
-}
-for _first in "-+0123456789":
-    _Loader.yaml_implicit_resolvers.setdefault(_first, []).insert(0, (_INT_TAG, _DECIMAL_INT))
-for _first in "-+.0123456789":
-    _Loader.yaml_implicit_resolvers[_first].insert(0 if _first == "." else 1, (_FLOAT_TAG, _DECIMAL_FLOAT))
-
-
-def _construct_int(loader: Any, node: yaml.ScalarNode) -> int:
-    text = loader.construct_scalar(node)
-    if not _DECIMAL_INT.match(text):  # also an explicit !!int 0x10: decimal only
-        raise yaml.constructor.ConstructorError(None, None, f"'{text}' is not a decimal integer",
-                                                node.start_mark)
-    return int(text)  # int("010") is 10: a leading zero is not octal
-
-
-def _construct_float(loader: Any, node: yaml.ScalarNode) -> float:
-    text = loader.construct_scalar(node)
-    if not (_DECIMAL_FLOAT.match(text) or _DECIMAL_INT.match(text)):
-        raise yaml.constructor.ConstructorError(None, None, f"'{text}' is not a decimal number",
-                                                node.start_mark)
-    if text.lower().endswith((".inf", ".nan")):  # float() reads "inf" and "nan", not YAML's ".inf"
-        return float(text.replace(".", "", 1))
-    return float(text)
-
-
-_Loader.add_constructor(_INT_TAG, _construct_int)
-_Loader.add_constructor(_FLOAT_TAG, _construct_float)
+decimal_numbers(_Loader)
 
 VESSEL_DIR = Path(__file__).parent / "vessels"
 

@@ -10,18 +10,19 @@ is built (deeply nested flow collections crash libyaml's constructor and exhaust
 recursion), and the size the document expands to through aliases afterwards (a "billion laughs"
 file of a few lines expands to 10^9 values for every later pass over it).
 
-Numbers are read as YAML 1.2 reads them, not as PyYAML's YAML 1.1: only plain decimals are numbers
-(``010`` is 10); ``0x10``, ``0b11``, ``1_0`` and ``1:30`` (octal, binary, digit separators,
-sexagesimal) stay text, which the field's validation then refuses.
+Numbers are read as YAML 1.2 reads them, not as PyYAML's YAML 1.1 (``components/yaml_numbers.py``,
+which the vessel files' loader shares): only plain decimals are numbers (``010`` is 10); ``0x10``,
+``0b11``, ``1_0`` and ``1:30`` stay text, which the field's validation then refuses.
 """
 
 from __future__ import annotations
 
-import re
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import yaml
+
+from seafmu.components.yaml_numbers import decimal_numbers
 
 if TYPE_CHECKING:  # only named here: the sweep reads its study file before pydantic is imported
     from pydantic import ValidationError
@@ -31,48 +32,6 @@ MAX_YAML_DEPTH = 64  # nesting of mappings and lists
 MAX_YAML_VALUES = 1_000_000  # values after expanding aliases
 
 _Base: Any = getattr(yaml, "CSafeLoader", yaml.SafeLoader)  # libyaml: about 5x faster
-
-# YAML 1.2 core schema numbers. components/vessel_spec.py holds the same (components/ does not import
-# seafmu/); tests/test_scenario_errors.py holds the two equal.
-INT_TAG, FLOAT_TAG = "tag:yaml.org,2002:int", "tag:yaml.org,2002:float"
-DECIMAL_INT = re.compile(r"[-+]?[0-9]+\Z")
-DECIMAL_FLOAT = re.compile(r"(?:[-+]?(?:(?:[0-9]+\.[0-9]*|\.[0-9]+)(?:[eE][-+]?[0-9]+)?"
-                           r"|[0-9]+[eE][-+]?[0-9]+)|[-+]?\.(?:inf|Inf|INF)|\.(?:nan|NaN|NAN))\Z")
-
-
-def _construct_int(loader: Any, node: yaml.ScalarNode) -> int:
-    text = loader.construct_scalar(node)
-    if not DECIMAL_INT.match(text):  # also an explicit !!int 0x10: decimal only
-        raise yaml.constructor.ConstructorError(None, None, f"'{text}' is not a decimal integer",
-                                                node.start_mark)
-    return int(text)  # int("010") is 10: a leading zero is not octal
-
-
-def _construct_float(loader: Any, node: yaml.ScalarNode) -> float:
-    text = loader.construct_scalar(node)
-    if not (DECIMAL_FLOAT.match(text) or DECIMAL_INT.match(text)):
-        raise yaml.constructor.ConstructorError(None, None, f"'{text}' is not a decimal number",
-                                                node.start_mark)
-    if text.lower().endswith((".inf", ".nan")):  # float() reads "inf" and "nan", not YAML's ".inf"
-        return float(text.replace(".", "", 1))
-    return float(text)
-
-
-def decimal_numbers(loader: type) -> None:
-    """Make ``loader`` (a SafeLoader or CSafeLoader subclass: resolvers and constructors are Python
-    level for both) read YAML 1.2 numbers: the int and float resolvers replaced, the rest kept."""
-    resolvers: dict[str, list[tuple[str, re.Pattern[str]]]] = {
-        first: [(tag, rx) for tag, rx in pairs if tag not in (INT_TAG, FLOAT_TAG)]
-        for first, pairs in loader.yaml_implicit_resolvers.items()  # type: ignore[attr-defined]
-    }
-    for first in "-+0123456789":
-        resolvers.setdefault(first, []).insert(0, (INT_TAG, DECIMAL_INT))
-    for first in "-+.0123456789":
-        resolvers.setdefault(first, []).insert(1 if first != "." else 0, (FLOAT_TAG, DECIMAL_FLOAT))
-    loader.yaml_implicit_resolvers = resolvers  # type: ignore[attr-defined]
-    loader.add_constructor(INT_TAG, _construct_int)  # type: ignore[attr-defined]
-    loader.add_constructor(FLOAT_TAG, _construct_float)  # type: ignore[attr-defined]
-
 
 class _UniqueKeyLoader(_Base):  # type: ignore[misc, valid-type]
     """YAML silently keeps the last of two equal keys; in an input file that hides a mistake."""

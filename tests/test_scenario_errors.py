@@ -279,8 +279,8 @@ def test_scenario_file_numbers_are_decimal(tmp_path: Path) -> None:
 
 
 def test_scenario_and_vessel_loaders_read_numbers_alike() -> None:
-    """components/vessel_spec.py keeps its own copy of the YAML 1.2 number rules (components/ does not
-    import seafmu/): both read every case the same, and unlike PyYAML's YAML 1.1 SafeLoader."""
+    """The scenario files' loader and the vessel files' (both made YAML 1.2 by
+    components/yaml_numbers.py) read every case the same, and unlike PyYAML's YAML 1.1 SafeLoader."""
     from seafmu.components.vessel_spec import _Loader
     from seafmu.yamlfile import load_value
 
