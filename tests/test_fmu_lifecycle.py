@@ -459,7 +459,7 @@ def test_bad_parameters_are_fatal_naming_them_and_the_fmu_stays_usable(built_fmu
     """pythonfmu 0.7.0 cannot return fmi2Error from Python: a bad value is fmi2Fatal (the only other
     status), logged at error level first, and safe: the instance can still be used and freed."""
     path = built_fmus[("minerva2", "plant")]
-    for value, why in ((math.nan, "must be finite"), (-1.0, "must be >= 0, got -1.0")):
+    for value, why in ((math.nan, "must be finite"), (-1.0, "must be within [0, 100], got -1.0")):
         fmu, vr, log = _open(path, {"noise_scale": value}, init=False)
         with pytest.raises(FMICallException) as err:
             fmu.exitInitializationMode()

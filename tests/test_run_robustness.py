@@ -395,7 +395,7 @@ def test_hostile_yaml_gives_one_line(tmp_path: Path, text: str, expected: str) -
 def test_check_prints_the_size_of_the_run(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["check", "minerva2_dp"]) == 0
     out = capsys.readouterr().out
-    assert "6000 steps, 3001 samples x 133 signals (3.19 MB of results in memory)" in out, out
+    assert "6000 steps, 3001 samples x 133 signals (3.22 MB of results in memory)" in out, out
 
 
 def test_the_master_refuses_an_oversized_scenario_made_in_code() -> None:
