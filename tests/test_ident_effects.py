@@ -296,3 +296,26 @@ def test_a_load_cell_offset_is_named_a_constant_force(tmp_path: Any, seed: int) 
     for c in d.candidates:
         if c.fit is not None and unphysical(d.baseline, c.fit):
             assert not c.accepted and "unphysical model" in c.reason
+
+
+def test_a_friction_and_a_force_on_speeds_of_one_sign_are_said_to_be_one_model(tmp_path: Any) -> None:
+    """A tow table ahead only with a 5 N offset: friction opposing the motion and a constant force
+    are the same term there, so whichever is named, the evidence says the data cannot tell them
+    apart and where they would differ (astern)."""
+    from seafmu.identification.diagnosis import diagnose
+    from seafmu.identification.trial import load_trial
+
+    rng = np.random.default_rng(0)
+    v = np.linspace(0.1, 2.0, 20)
+    F = 8.0 * v + 25.0 * v * np.abs(v) + 5.0
+    F = F + rng.normal(scale=0.015 * (F.max() - F.min()), size=v.size)
+    rows = "".join(f"{a:.4g},{b:.5f}\n" for a, b in zip(v, F, strict=True))
+    (tmp_path / "table.csv").write_text("speed_m_s,force_N\n" + rows)
+    (tmp_path / "trial.yaml").write_text(
+        "name: tow\nkind: static\ntable: force_speed\ndof: surge\nfiles: [table.csv]\ncolumns:\n"
+        "  input: {column: speed_m_s, unit: m/s}\n  output: {column: force_N, unit: N}\n")
+    d = diagnose(load_trial(tmp_path / "trial.yaml"))
+    assert d.cause is not None and d.cause.effect in ("coulomb_friction", "constant_force")
+    other = ({"coulomb_friction", "constant_force"} - {d.cause.effect}).pop()
+    assert f"'{other}' fits these data exactly as well" in d.evidence, d.evidence
+    assert "cannot tell them apart" in d.evidence and "measure at speed -" in d.evidence

@@ -1196,10 +1196,26 @@ def explain(trial: Trial, base: FitResult, cands: list[Candidate], cause: Candid
         listed = ", ".join(f"'{a.candidate.effect}' (Akaike weight {a.weight:.2f}, held-out ratio "
                            f"{a.candidate.ratio:.2f})" for a in likely)
         text += f" Also credible: {listed}; '{'+'.join(cause.effects)}' has weight {alts[0].weight:.2f}."
+        twins = [a for a in likely if _same_fit(cause, a.candidate)]
+        if twins:  # named by catalogue order alone: say so, and what would tell them apart
+            a = twins[0]
+            text += (f" '{a.candidate.effect}' fits these data exactly as well (on them the two are one "
+                     f"model, e.g. a friction and a constant force where every speed has one sign): "
+                     f"the data cannot tell them apart"
+                     + (f"; to do so, {a.experiment['text']}." if a.experiment else "."))
     if len(others) > len(likely):
         text += (f" {len(others) - len(likely)} other explanation(s) pass the rule with an Akaike weight "
                  "below 0.01.")
     return text
+
+
+def _same_fit(a: Candidate, b: Candidate) -> bool:
+    """Two fits that are the same model on this trial: equal residual (AIC within 1e-6 of the
+    number of samples' scale) and equal held-out error."""
+    if a.fit is None or b.fit is None:
+        return False
+    return abs(a.fit.aic - b.fit.aic) <= 1e-6 * max(1.0, abs(a.fit.aic)) and math.isclose(
+        a.ratio, b.ratio, rel_tol=1e-6)
 
 
 def _params_for_words(fit: FitResult) -> dict[str, float]:
