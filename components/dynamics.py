@@ -13,8 +13,8 @@ toolbox (Fossen 2021, *Handbook of Marine Craft Hydrodynamics and Motion Control
 - restoring forces: ``gvect`` = g(η) of weight and buoyancy, ``restoring_coefficients`` and
   ``restoring_force`` (the same with the constants folded, vectorised over samples).
 
-The hot paths (``VesselModel._rhs3/_rhs6``, ``ObserverBlock._kin6``) stay unrolled in plain floats
-for speed; ``tests/test_dynamics.py`` holds each of them equal to the matrix form here.
+The hot paths (``kernels/rigid_body.py``: ``rhs3``, ``rhs6``; ``kernels/ekf.py``: ``kin3``, ``kin6``)
+are compiled scalar code for speed; ``tests/test_dynamics.py`` holds each equal to the matrix form here.
 
 Symmetry: ``m2c`` and ``coriolis_force`` use the symmetric part of M, so C(ν) is skew-symmetric
 (C + Cᵀ = 0) and does no work: with an asymmetric inertia matrix there is no conserved mechanical

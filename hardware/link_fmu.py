@@ -6,7 +6,7 @@ inputs ``n_cmd_i``, outputs ``meas_*``, ``*_count``, ``n_i``, status. String par
 ``serial_url``, ``can_interface``, ``can_channel`` and ``record_dir`` override the profile's ports
 without a rebuild. ``fmi2DoStep`` is paced to the wall clock (the vessel does not wait), so a host
 must call it no faster than real time can follow. The host's Python needs pyserial, python-can,
-cantools and pynmea2 (and numpy, pyyaml, pydantic), as for seafmu's other FMUs.
+cantools and pynmea2 (and numpy, numba, pyyaml, pydantic), as for seafmu's other FMUs.
 """
 
 from __future__ import annotations
