@@ -60,8 +60,18 @@ def _names(prefix: str, d: int, entries: str) -> list[tuple[str, int, int]]:
     return [(f"{prefix}[{i},{j}]", i, j) for i in range(d) for j in range(d)]
 
 
+def _coriolis_of(vessel: VesselSpec) -> Any:
+    """C_M(nu) nu as the vessel's model has it: none for a file with ``coriolis: none`` (the supply
+    vessel's linear low-speed DP model, which the plant simulates so; with the term put back, a
+    clean log of it was named `coupling`)."""
+    if vessel.coriolis != "none":
+        return coriolis_force
+    return lambda M, nu: np.zeros_like(nu)
+
+
 def _ls_acceleration(prep: _Prepared, rows: np.ndarray, g: np.ndarray, M0: np.ndarray,
-                     iterate: bool = False, warnings: list[str] | None = None) -> _LSResult:
+                     iterate: bool = False, warnings: list[str] | None = None,
+                     cor: Any = coriolis_force) -> _LSResult:
     """Thesis form: Y = nu_dot + M0^-1 (C_M0 nu + g) = Theta^T [tau, nu, |nu| nu], per row.
 
     ``iterate``: replace M0 by the symmetric part of the estimated M and refit until Theta
@@ -78,7 +88,7 @@ def _ls_acceleration(prep: _Prepared, rows: np.ndarray, g: np.ndarray, M0: np.nd
     P = G @ Phi.T
 
     def fit(Mc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        Y = prep.nu_dot[rows] + np.linalg.solve(Mc, (coriolis_force(Mc, nu) + g[rows]).T).T
+        Y = prep.nu_dot[rows] + np.linalg.solve(Mc, (cor(Mc, nu) + g[rows]).T).T
         return Y, P @ Y
 
     Y, Theta = fit(M0)
@@ -124,7 +134,8 @@ def _ls_acceleration(prep: _Prepared, rows: np.ndarray, g: np.ndarray, M0: np.nd
                      "acceleration form (Minerva 2 study)", iterations)
 
 
-def _ls_joint(prep: _Prepared, rows: np.ndarray, g: np.ndarray, damping: str) -> _LSResult:
+def _ls_joint(prep: _Prepared, rows: np.ndarray, g: np.ndarray, damping: str,
+              cor: Any = coriolis_force) -> _LSResult:
     """Force form, linear in a symmetric M (incl. its Coriolis terms), D_L and D_Q:
     tau - g = M nu_dot + C_M(nu) nu + D_L nu + D_Q |nu| nu, all DOF rows in one weighted LS."""
     d = prep.nu.shape[1]
@@ -142,7 +153,7 @@ def _ls_joint(prep: _Prepared, rows: np.ndarray, g: np.ndarray, damping: str) ->
     for k, (_, i, j) in enumerate(m_idx):
         E = np.zeros((d, d))
         E[i, j] = E[j, i] = 1.0
-        X[:, :, k] = (nud @ E.T + coriolis_force(E, nu)).T
+        X[:, :, k] = (nud @ E.T + cor(E, nu)).T
     nq = np.abs(nu) * nu
     k = len(m_idx)
     for src, idx in ((nu, l_idx), (nq, q_idx)):
@@ -200,9 +211,12 @@ def _run_ls_form(prep: _Prepared, rows: np.ndarray, vessel: VesselSpec, plant: d
     n = prep.t.size
     g_all = _Restoring(vessel)(prep.eta[:, 3], prep.eta[:, 4]) if d == 6 else np.zeros((n, 3))
     if coriolis == "joint":
-        return _ls_joint(prep, rows, g_all, damping)
-    ls = _ls_acceleration(prep, rows, g_all, plant["M"], coriolis == "iterate", warnings)
-    if coriolis == "iterate":
+        return _ls_joint(prep, rows, g_all, damping, _coriolis_of(vessel))
+    ls = _ls_acceleration(prep, rows, g_all, plant["M"], coriolis == "iterate", warnings,
+                          _coriolis_of(vessel))
+    if vessel.coriolis == "none":
+        ls.note += ", no Coriolis terms (the vessel file's coriolis: none)"
+    elif coriolis == "iterate":
         ls.note += f", Coriolis from the estimated M ({ls.iterations} iterations)"
     else:
         ls.note += ", Coriolis and restoring from the vessel file's M"
@@ -381,7 +395,7 @@ def _screen_equation_error(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup
     for _, i, j in m_idx:
         E = np.zeros((d, d))
         E[i, j] = E[j, i] = 1.0
-        cols.append(nud @ E.T + coriolis_force(E, nu))
+        cols.append(nud @ E.T + _coriolis_of(vessel)(E, nu))
     for src in (nu, np.abs(nu) * nu):
         for i in range(d):
             c = np.zeros_like(nu)

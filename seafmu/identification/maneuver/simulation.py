@@ -53,6 +53,7 @@ class _Simulator:
     def __init__(self, vessel: VesselSpec, t: np.ndarray, tau: np.ndarray, x_meas: np.ndarray,
                  starts: np.ndarray, length: int) -> None:
         self.d = vessel.dof
+        self.coriolis = vessel.coriolis != "none"  # the plant's model: none for a linear DP model
         self.g = _Restoring(vessel)
         self.length = length
         self.h = float(t[1] - t[0])
@@ -108,7 +109,9 @@ class _Simulator:
         # all parameter sets at once: T(M) is linear in M, so it is M's entries times a basis
         Ms = _sym(np.asarray(M, dtype=float))
         Minv = np.linalg.inv(Ms)
-        if cur:  # C_RB(nu) nu + C_A(nu_r) nu_r: Coriolis is linear in M
+        if not self.coriolis:  # ``coriolis: none`` in the vessel file: the blocks stay, as zeros
+            cor = [np.zeros((K, d, d * d))] * (2 if cur else 1)
+        elif cur:  # C_RB(nu) nu + C_A(nu_r) nu_r: Coriolis is linear in M
             T_RB = coriolis_tensor(self.M_RB)
             cor = [-np.broadcast_to(Minv @ T_RB, (K, d, d * d)), -Minv @ self._tensor(Ms - self.M_RB)]
         else:
