@@ -230,3 +230,16 @@ def test_an_overflowing_fit_names_the_trial_file_and_the_output_unit(tmp_path: P
     assert msg.startswith(f"{path}: columns.output (theta_rad, unit deg): the output-error fit "
                           "overflowed"), msg
     assert "theta_rad runs from 0.14 to 0.39 deg" in msg and "check the unit" in msg and "\n" not in msg
+
+
+def test_a_bare_csv_is_named_after_its_run_folder_or_itself(tmp_path: Path) -> None:
+    """results/minerva2_dp/results.csv is the minerva2_dp trial; logs/a.csv and logs/b.csv are a and
+    b, so their reports do not share (and overwrite) one default folder results/logs."""
+    from seafmu.identification.trial import csv_trial
+
+    for rel in ("minerva2_dp/results.csv", "logs/a.csv", "logs/b.csv"):
+        (tmp_path / rel).parent.mkdir(exist_ok=True)
+        (tmp_path / rel).write_text("time,plant.u\n0,0\n")
+    names = [csv_trial(tmp_path / rel, "amv_osf").name for rel in
+             ("minerva2_dp/results.csv", "logs/a.csv", "logs/b.csv")]
+    assert names == ["minerva2_dp", "a", "b"]

@@ -722,11 +722,14 @@ def check_vessel(trial: Trial, spec: Any) -> None:
 
 
 def csv_trial(path: str | Path, vessel: str) -> Trial:
-    """A bare CSV (e.g. a `seafmu run` results.csv) taken as a maneuver trial of this vessel."""
+    """A bare CSV (e.g. a `seafmu run` results.csv) taken as a maneuver trial of this vessel, named
+    after its run's folder (results/minerva2_dp/results.csv: minerva2_dp), any other CSV after its
+    own name: logs/a.csv and logs/b.csv must not share the default output folder."""
     path = Path(path)
     if not path.is_file():
         raise TrialError(f"{path}: no such file")
-    return Trial(name=path.parent.name or path.stem, kind="maneuver", runs=[], baseline="ls", vessel=vessel,
+    name = (path.parent.name or path.stem) if path.stem == "results" else path.stem
+    return Trial(name=name, kind="maneuver", runs=[], baseline="ls", vessel=vessel,
                  provenance=_header_provenance(path) or f"log {path}", source=path, files=[path])
 
 
