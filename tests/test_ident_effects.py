@@ -319,3 +319,17 @@ def test_a_friction_and_a_force_on_speeds_of_one_sign_are_said_to_be_one_model(t
     other = ({"coulomb_friction", "constant_force"} - {d.cause.effect}).pop()
     assert f"'{other}' fits these data exactly as well" in d.evidence, d.evidence
     assert "cannot tell them apart" in d.evidence and "measure at speed -" in d.evidence
+
+
+def test_the_console_summary_names_the_effects_not_tried() -> None:
+    """A "none" or a cause covers only what was tried: the console says which effects were not
+    applicable (their reasons are in diagnosis.md), not only the report."""
+    from seafmu.identification.diagnosis import diagnose
+    from seafmu.identification.report import summary_lines
+    from seafmu.identification.trial import load_trial
+    from seafmu.scenario import REPO
+
+    d = diagnose(load_trial(REPO / "scenarios" / "data" / "rov_cfd_force_speed.yaml"))
+    line = next(x for x in summary_lines(d) if "not tried" in x)
+    assert d.skipped and all(name in line for name in d.skipped)
+    assert "coupling" in line and "quadratic_damping" not in line  # tried (and named)

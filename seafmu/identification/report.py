@@ -488,6 +488,8 @@ def summary_lines(obj: Identification | Diagnosis) -> list[str]:
     if d.cause and d.cause.fit:
         e = d.cause.fit
         lines.append(f"  extended: {params(e)}; held-out NRMSE {_g(e.nrmse_validation)}, AIC {_g(e.aic, 6)}")
+    if d.skipped:  # what "none" did not cover, on the console too (not only in diagnosis.md)
+        lines.append(f"  not tried, not applicable to this trial (why: diagnosis.md): {', '.join(d.skipped)}")
     lines += [f"  warning: {w}" for w in b.warnings]
     return lines
 
