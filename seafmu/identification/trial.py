@@ -406,7 +406,7 @@ def _column(path: Path, header: list[str], rows: list[list[str]], lines: list[in
     j = header.index(name)
     out = np.empty(len(rows))
     for i, row in enumerate(rows):
-        cell = row[j].strip() if j < len(row) else ""
+        cell = row[j].strip()  # every row has the header's fields (read_table)
         try:
             val = cell_float(cell)
         except ValueError:

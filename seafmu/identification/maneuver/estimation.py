@@ -392,10 +392,11 @@ def _screen_equation_error(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup
     nu, nud, y = prep.nu[rows], prep.nu_dot[rows], prep.tau[rows] - g
     m_idx = _names("M", d, "upper")
     cols = []
+    cor = _coriolis_of(vessel)
     for _, i, j in m_idx:
         E = np.zeros((d, d))
         E[i, j] = E[j, i] = 1.0
-        cols.append(nud @ E.T + _coriolis_of(vessel)(E, nu))
+        cols.append(nud @ E.T + cor(E, nu))
     for src in (nu, np.abs(nu) * nu):
         for i in range(d):
             c = np.zeros_like(nu)
