@@ -3,6 +3,10 @@ what the single-threaded kernel and NumPy give (the diagnosis's answers may not 
 
 from __future__ import annotations
 
+import os
+import signal
+import time
+
 import numpy as np
 import pytest
 
@@ -99,3 +103,24 @@ def test_the_compiled_noise_only_q_is_ljung_box_of_each_residual() -> None:
             continue
         np.testing.assert_allclose(q[b], fitting.ljung_box_q(r[b], k)[0], rtol=1e-10)
     assert np.all(q[[0, 1, 2, 4]] > 0)
+
+
+def test_a_process_forked_after_a_split_simulation_simulates_too() -> None:
+    """The thread pool's threads are not in a forked child: the child makes its own pool (a pool
+    inherited as it was would queue the parts for threads that do not exist, and wait forever)."""
+    sim, vm = _simulator("minerva2", segments=9, length=1000)
+    mats = [np.repeat(a[None], 7, axis=0) for a in (vm.M, vm.D_L, vm.D_Q)]
+    before = sim.run(*mats)
+    pid = os.fork()
+    if pid == 0:  # the child: exit 0 when it simulates the same
+        os._exit(0 if np.array_equal(sim.run(*mats), before) else 3)
+    deadline = time.monotonic() + 60.0
+    while time.monotonic() < deadline:
+        done, status = os.waitpid(pid, os.WNOHANG)
+        if done:
+            assert os.waitstatus_to_exitcode(status) == 0
+            return
+        time.sleep(0.05)
+    os.kill(pid, signal.SIGKILL)
+    os.waitpid(pid, 0)
+    pytest.fail("the forked child did not finish its simulation in 60 s")

@@ -153,6 +153,7 @@ class _Simulator:
 
 MIN_SPLIT_STEPS = 4_000  # segment steps per thread at least (~1.5 ms of 6-DOF RK4; a hand-over costs ~0.1 ms)
 _POOL: list[ThreadPoolExecutor] = []
+_POOL_PID = [0]  # the process that made _POOL
 
 
 def _cores() -> int:
@@ -175,8 +176,9 @@ def _simulate(x0: np.ndarray, tau: np.ndarray, tau_mid: np.ndarray, W: np.ndarra
     if n < 2:
         maneuver_kernel.simulate(x0, tau, tau_mid, W, h, d, g4, cur, vc, psi, psi_mid, out)
         return
-    if not _POOL:
-        _POOL.append(ThreadPoolExecutor(max_workers=_cores(), thread_name_prefix="seafmu-sim"))
+    if _POOL_PID[0] != os.getpid():  # none yet, or made before this process forked: its threads are not here
+        _POOL[:] = [ThreadPoolExecutor(max_workers=_cores(), thread_name_prefix="seafmu-sim")]
+        _POOL_PID[0] = os.getpid()
     edges = np.linspace(0, axis_n, n + 1).astype(int)
     parts = []
     for a, b in itertools.pairwise(edges.tolist()):
