@@ -151,7 +151,7 @@ class _Simulator:
         return out
 
 
-MIN_SPLIT_STEPS = 4_000  # segment steps per thread at least (~1.5 ms of 6-DOF RK4; a hand-over costs ~0.1 ms)
+MIN_SPLIT_STEPS = 2_000  # segment steps per thread at least (~0.7 ms of 6-DOF RK4; a hand-over costs ~0.1 ms)
 _POOL: list[ThreadPoolExecutor] = []
 _POOL_PID = [0]  # the process that made _POOL
 
