@@ -237,7 +237,9 @@ def fit_baseline(trial: Trial, diagnosis: bool = False) -> FitResult:
         return static.fit_static(trial, static.baseline_model(trial))
     if trial.kind == "maneuver":
         return fit_maneuver(trial, "output_error" if diagnosis else trial.baseline)
-    return timeseries.fit_timeseries(trial, timeseries.baseline_model(trial))
+    fit = timeseries.fit_timeseries(trial, timeseries.baseline_model(trial))
+    fit.warnings[:0] = trial.notes  # what was left out of the data (a hold before a release)
+    return fit
 
 
 def fit_extension(trial: Trial, base: FitResult, effect: str | tuple[str, ...],

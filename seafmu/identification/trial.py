@@ -138,6 +138,8 @@ class Trial:
     units: dict[str, str] = field(default_factory=dict)  # role -> unit in the file
     columns: dict[str, str] = field(default_factory=dict)  # role -> CSV column (maneuver mapping)
     files: list[Path] = field(default_factory=list)
+    # what was done to the data before fitting (a hold before a release left out), said with the fit
+    notes: list[str] = field(default_factory=list)
 
     @property
     def rotational(self) -> bool:
@@ -175,11 +177,31 @@ def make_trial(
         raise TrialError(f"{name}: baseline '{base}' is not one of {', '.join(allowed)} for this kind")
     if kind == "step" and input_kind is None:
         input_kind = "force"
+    notes: list[str] = []
+    runs, vruns = released(runs, kind, notes), released(validation_runs or [], kind, notes)
     return Trial(
-        name=name, kind=kind, runs=runs, dof=dof, table=table, validation_runs=validation_runs or [],
+        name=name, kind=kind, runs=runs, dof=dof, table=table, validation_runs=vruns,
         constants=dict(constants or {}), baseline=base, input_kind=input_kind, thrust_law=thrust_law,
         restoring=restoring, mirror=mirror, validation_fraction=validation_fraction, provenance=provenance,
+        notes=notes,
     )
+
+
+def released(runs: list[Run], kind: str, notes: list[str]) -> list[Run]:
+    """The runs of a decay or pendulum trial from their release on: a leading stretch where the body
+    is still held (``release.held_samples``) is left out, and ``notes`` says so; a run left with too
+    few samples is kept whole."""
+    from seafmu.identification.release import held_samples
+
+    out = []
+    for r in runs:
+        h = held_samples(r.t, r.y, kind) if r.t is not None else 0
+        if h and r.y.shape[0] - h >= MIN_SAMPLES.get(kind, 0):
+            notes.append(f"{r.name}: the first {h} samples ({r.t[h] - r.t[0]:.3g} s) left out: the output "
+                         f"stays where it starts until a release at t = {r.t[h]:.6g} s (held before it)")
+            r = Run(r.name, r.y[h:], r.t[h:], *(None if a is None else a[h:] for a in (r.u, r.rate, r.accel)))
+        out.append(r)
+    return out
 
 
 # -- loading -----------------------------------------------------------------------------------
@@ -670,8 +692,9 @@ def _resolve(tm: TrialModel, path: Path) -> Trial:
             u = np.column_stack([data["input"], data["input2"]])
         return Run(name=f.stem, y=y, t=data.get("time"), u=u, rate=data.get("rate"), accel=data.get("accel"))
 
-    runs = [read(f) for f in files]
-    vruns = [read(f) for f in vfiles]
+    notes: list[str] = []
+    runs = released([read(f) for f in files], tm.kind, notes)
+    vruns = released([read(f) for f in vfiles], tm.kind, notes)
     if tm.kind == "static" and vruns:
         raise fail("validation_files", "a static table is validated by leave-one-out, not by files")
     return Trial(
@@ -680,6 +703,7 @@ def _resolve(tm: TrialModel, path: Path) -> Trial:
         restoring=tm.restoring, mirror=tm.mirror, validation_fraction=tm.validation_fraction,
         vessel=tm.vessel, provenance=tm.provenance or _header_provenance(files[0]),
         description=tm.description, source=path, units=units, columns=colnames, files=files + vfiles,
+        notes=notes,
     )
 
 
