@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import contextlib
 import json
-import os
 import pickle
 import signal
 import subprocess
@@ -30,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from seafmu.cores import core_count  # standard library only, as the next: the worker stays light
 from seafmu.outdir import atomic_path  # standard library only: the worker stays light
 
 DPI = 110
@@ -310,7 +310,7 @@ class Plotter:
     """
 
     def __init__(self, parts: int | None = None) -> None:
-        self.parts = len(os.sched_getaffinity(0)) if parts is None else parts
+        self.parts = core_count() if parts is None else parts
         self._proc: subprocess.Popen[bytes] | None = None
 
     def __enter__(self) -> Plotter:

@@ -60,10 +60,10 @@ def test_the_threaded_simulation_equals_one_thread(monkeypatch: pytest.MonkeyPat
         kernel(*args)
 
     monkeypatch.setattr(simulation.maneuver_kernel, "simulate", counted)
-    monkeypatch.setattr(simulation, "_cores", lambda: 2)
+    monkeypatch.setattr(simulation, "core_count", lambda: 2)
     split = sim.run(M, DL, DQ, vc=vc)
     assert len(calls) == 2
-    monkeypatch.setattr(simulation, "_cores", lambda: 1)
+    monkeypatch.setattr(simulation, "core_count", lambda: 1)
     whole = sim.run(M, DL, DQ, vc=vc)
     assert len(calls) == 3
     assert np.all(np.isfinite(whole)) and np.ptp(whole) > 0.01
@@ -76,7 +76,7 @@ def test_a_short_simulation_stays_in_one_thread(monkeypatch: pytest.MonkeyPatch)
     calls: list[int] = []
     kernel = maneuver_kernel.simulate
     monkeypatch.setattr(simulation.maneuver_kernel, "simulate", lambda *a: (calls.append(1), kernel(*a)))
-    monkeypatch.setattr(simulation, "_cores", lambda: 2)
+    monkeypatch.setattr(simulation, "core_count", lambda: 2)
     sim.run(vm.M[None], vm.D_L[None], vm.D_Q[None])
     assert len(calls) == 1
 

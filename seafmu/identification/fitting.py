@@ -184,6 +184,14 @@ def lags(n: int, max_lag: int = 20) -> int:
     return int(min(max_lag, max(n // 4, 1)))
 
 
+def white_noise_std(x: np.ndarray) -> np.ndarray:
+    """Std of the white noise on a smooth signal, per column (a 1-D signal: a scalar array), from its
+    second differences (6 sigma^2 for white noise; the median absolute deviation keeps the signal's
+    own curvature and outliers out)."""
+    d2 = np.diff(x, n=2, axis=0)
+    return 1.4826 * np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0) / np.sqrt(6.0)
+
+
 def ljung_box_q(r: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     """(Ljung–Box Q, autocorrelations at lags 1..k) of each column of r (n, c), mean removed;
     Q is nan for a column that is constant."""

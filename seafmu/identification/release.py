@@ -19,17 +19,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from seafmu.identification.fitting import white_noise_std
+
 RELEASE_KINDS = {"decay": 1, "decay2": 2, "pendulum": 2}  # trial kind -> power of the motion after release
 MIN_HELD = 3  # samples: a shorter lead is within what noise moves a release's first samples
 MIN_GAIN = 25.0  # squared-error drop, in noise variances (5 sigma), for a hold to be real
 MAX_CANDIDATES = 400  # release instants tried (evenly spaced) in a long lead
 DEPARTED = 0.2  # the fraction of the way to the end value that ends the window
-
-
-def _noise_std(y: np.ndarray) -> float:
-    """White-noise std from second differences (robust: median absolute deviation)."""
-    d2 = np.diff(y, 2)
-    return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(6.0))
 
 
 def held_samples(t: np.ndarray, y: np.ndarray, kind: str) -> int:
@@ -39,7 +35,7 @@ def held_samples(t: np.ndarray, y: np.ndarray, kind: str) -> int:
     if p is None or y.ndim != 1 or t is None or y.size < 20:
         return 0
     end = float(np.median(y[-max(5, y.size // 10):]))
-    sigma = max(_noise_std(y), 1e-12 * float(np.max(np.abs(y)) or 1.0))
+    sigma = max(float(white_noise_std(y)), 1e-12 * float(np.max(np.abs(y)) or 1.0))
     moved = np.flatnonzero(np.abs(y - y[0]) > max(5.0 * sigma, DEPARTED * abs(y[0] - end)))
     if moved.size == 0 or moved[0] <= MIN_HELD:
         return 0
@@ -52,8 +48,8 @@ def held_samples(t: np.ndarray, y: np.ndarray, kind: str) -> int:
         coef, *_ = np.linalg.lstsq(X, yw, rcond=None)
         return float(np.sum((yw - X @ coef) ** 2))
 
-    errs = np.array([sse(int(r)) for r in cands])
+    errs = np.array([sse(int(r)) for r in cands])  # cands[0] = 0: a release at the first sample
     best = int(cands[int(np.argmin(errs))])
-    if best < MIN_HELD or sse(0) - float(np.min(errs)) < MIN_GAIN * sigma**2:
+    if best < MIN_HELD or errs[0] - float(np.min(errs)) < MIN_GAIN * sigma**2:
         return 0
     return best

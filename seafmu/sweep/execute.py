@@ -42,6 +42,7 @@ from typing import Any
 
 import numpy as np
 
+from seafmu.cores import core_count, usable_cores
 from seafmu.master import StopRequest
 from seafmu.outdir import atomic_path, atomic_write_text
 from seafmu.sweep import forkserver
@@ -55,19 +56,9 @@ STOP_POLL_S = 0.1  # how soon a stop is seen while the cases run (s)
 SERIES = "timeseries"
 
 
-def _usable_cores() -> list[int] | None:
-    """The cores this process may use (its affinity, not the machine's count); None where the
-    platform does not say (not Linux)."""
-    try:
-        return sorted(os.sched_getaffinity(0))
-    except AttributeError:
-        return None
-
-
 def default_workers() -> int:
     """The cores this process may use."""
-    cores = _usable_cores()
-    return max(1, len(cores) if cores is not None else (os.cpu_count() or 1))
+    return core_count()
 
 
 class StudyFolder:
@@ -191,7 +182,7 @@ def _pinning(workers: int) -> dict[str, str]:
     one's scheduler) make Linux move the workers between cores, and a case then takes ~3 % more CPU
     (cold caches) than alone: benchmarks/bench_sweep.py, 2 workers. Fewer workers than cores (another
     study may use the rest) stay free to move."""
-    cores = _usable_cores()
+    cores = usable_cores()
     return {PIN_ENV: ",".join(map(str, cores))} if cores and 1 < workers == len(cores) else {}
 
 

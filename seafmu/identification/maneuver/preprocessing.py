@@ -4,12 +4,12 @@ smoother on both sides of the equation) or central differences.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.signal import savgol_coeffs, savgol_filter
 
+from seafmu.identification import fitting
 from seafmu.identification.maneuver.io import ManeuverData
 from seafmu.identification.trial import TrialError
 
@@ -62,9 +62,7 @@ def noise_ratio(nu: np.ndarray) -> float:
 
 def noise_ratios(nu: np.ndarray) -> np.ndarray:
     """Per DOF: white-noise std over signal std (``noise_ratio``)."""
-    d2 = np.diff(nu, n=2, axis=0)
-    sigma = 1.4826 * np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0) / math.sqrt(6.0)
-    return sigma / np.maximum(nu.std(axis=0), 1e-300)
+    return fitting.white_noise_std(nu) / np.maximum(nu.std(axis=0), 1e-300)
 
 
 def _prepare(data: ManeuverData, derivative: str, smoothing: float | None, polyorder: int) -> _Prepared:

@@ -16,6 +16,7 @@ import numpy as np
 from seafmu.components.kernels import maneuver as maneuver_kernel
 from seafmu.components.thrusters import thruster_matrix
 from seafmu.components.vessel_spec import VesselSpec
+from seafmu.cores import core_count
 from seafmu.identification import fitting
 from seafmu.identification.effects.coupling import sway_yaw_entries
 from seafmu.identification.maneuver.preprocessing import _Prepared
@@ -152,15 +153,7 @@ class _Simulator:
 
 
 MIN_SPLIT_STEPS = 2_000  # segment steps per thread at least (~0.7 ms of 6-DOF RK4; a hand-over costs ~0.1 ms)
-_POOL: list[ThreadPoolExecutor] = []
-_POOL_PID = [0]  # the process that made _POOL
-
-
-def _cores() -> int:
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not Linux
-        return os.cpu_count() or 1
+_POOLS: dict[int, ThreadPoolExecutor] = {}  # by the process that made it (a fork has not its threads)
 
 
 def _simulate(x0: np.ndarray, tau: np.ndarray, tau_mid: np.ndarray, W: np.ndarray, h: float, d: int,
@@ -172,13 +165,15 @@ def _simulate(x0: np.ndarray, tau: np.ndarray, tau_mid: np.ndarray, W: np.ndarra
     free of the GIL; the parts write disjoint slices of ``out``, so the result is the same."""
     K, S, L1 = out.shape[:3]
     axis_n = K if K > 1 else S
-    n = min(_cores(), axis_n, max(1, K * S * (L1 - 1) // MIN_SPLIT_STEPS))
+    n = min(core_count(), axis_n, max(1, K * S * (L1 - 1) // MIN_SPLIT_STEPS))
     if n < 2:
         maneuver_kernel.simulate(x0, tau, tau_mid, W, h, d, g4, cur, vc, psi, psi_mid, out)
         return
-    if _POOL_PID[0] != os.getpid():  # none yet, or made before this process forked: its threads are not here
-        _POOL[:] = [ThreadPoolExecutor(max_workers=_cores(), thread_name_prefix="seafmu-sim")]
-        _POOL_PID[0] = os.getpid()
+    pool = _POOLS.get(os.getpid())
+    if pool is None:  # none yet, or made before this process forked: its threads are not here
+        _POOLS.clear()
+        pool = ThreadPoolExecutor(max_workers=core_count(), thread_name_prefix="seafmu-sim")
+        _POOLS[os.getpid()] = pool
     edges = np.linspace(0, axis_n, n + 1).astype(int)
     parts = []
     for a, b in itertools.pairwise(edges.tolist()):
@@ -191,7 +186,7 @@ def _simulate(x0: np.ndarray, tau: np.ndarray, tau_mid: np.ndarray, W: np.ndarra
         else:  # segments a..b of the one set (psi is per segment only with a current)
             parts.append((x0[:, a:b], tau[:, a:b], tau_mid[:, a:b], W, h, d, g4, cur, vc,
                           psi[a:b] if cur else psi, psi_mid[a:b] if cur else psi_mid, out[:, a:b]))
-    futures = [_POOL[0].submit(maneuver_kernel.simulate, *args) for args in parts[1:]]
+    futures = [pool.submit(maneuver_kernel.simulate, *args) for args in parts[1:]]
     maneuver_kernel.simulate(*parts[0])
     for f in futures:
         f.result()
