@@ -92,3 +92,11 @@ def test_a_clean_decay_logged_before_its_release_is_clean(tmp_path: Path) -> Non
 def test_an_effect_is_still_found_after_a_hold(tmp_path: Path) -> None:
     d = diagnose(load_trial(_trial(tmp_path, hold=0.6, d_q=15.0)))
     assert d.effects == ["quadratic_damping"], d.evidence
+
+
+def test_a_hold_over_most_of_a_short_run_is_no_error() -> None:
+    """The window past the departure ends with the run (found by test_ident_robustness's random
+    decay logs: a log held for three quarters of its 40 samples raised a shape error)."""
+    t = np.arange(40) * 0.001
+    y = np.r_[np.full(30, 1e-6), np.linspace(1e-6, 5e-6, 10)]
+    assert held_samples(t, y, "decay") == 30

@@ -39,7 +39,7 @@ def held_samples(t: np.ndarray, y: np.ndarray, kind: str) -> int:
     moved = np.flatnonzero(np.abs(y - y[0]) > max(5.0 * sigma, DEPARTED * abs(y[0] - end)))
     if moved.size == 0 or moved[0] <= MIN_HELD:
         return 0
-    w = int(moved[0]) + 1 + int(moved[0]) // 2  # the lead and as much again of the departure
+    w = min(y.size, int(moved[0]) + 1 + int(moved[0]) // 2)  # the lead and half as much of the departure
     tw, yw = t[:w] - t[0], y[:w]
     cands = np.unique(np.linspace(0, int(moved[0]) - 1, min(int(moved[0]), MAX_CANDIDATES)).astype(int))
 
