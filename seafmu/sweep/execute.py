@@ -236,16 +236,19 @@ def scheduler_address(scheduler: str | None) -> str | None:
     return scheduler or os.environ.get("DASK_SCHEDULER_ADDRESS") or None
 
 
-def _import_for_results() -> None:
+def _import_for_results(rank_correlations: bool) -> None:
     """What cases.parquet and the report import, loaded while the local cluster's workers start (this
     process waits for them: they fork from a server still warming up) rather than while the cases
-    run, where it took ~0.4 s of CPU from the workers when they are as many as the cores."""
+    run, where it took ~0.4 s of CPU from the workers when they are as many as the cores.
+    ``rank_correlations``: the study varies an input, so the report computes them."""
     with collector_paused(), contextlib.suppress(Exception):
         import matplotlib.backends.backend_agg
         import matplotlib.figure  # noqa: F401
         import pandas  # noqa: F401
         import pyarrow.parquet  # noqa: F401
-        import scipy.special  # noqa: F401  (the report's Wilson intervals and rank correlations: ~0.1 s)
+
+        if rank_correlations:
+            import scipy.special  # noqa: F401  (their p-values: ~0.13 s)
 
 
 def _retire_idle(client: Any, cluster: Any, retired: set[str], left: int) -> None:
@@ -340,7 +343,8 @@ def run_study(study: Study, folder: StudyFolder, workers: int | None = None, sch
             cluster.close(timeout=10)
         return Outcome(len(study.cases), skipped, 0, "", rows, 0.0, 0)
     n_workers = min(workers or default_workers(), len(todo))
-    threading.Thread(target=_import_for_results, name="seafmu-sweep-imports", daemon=True).start()
+    threading.Thread(target=_import_for_results, args=(bool(study.inputs),), name="seafmu-sweep-imports",
+                     daemon=True).start()
     try:
         client, cluster = make_client(n_workers, scheduler, cluster)
     except BaseException:
