@@ -12,11 +12,49 @@ the kernel buffer is full, never blocking the other end.
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import os
 import select
 import threading
 import tty
 from pathlib import Path
+
+
+class PortInUse(OSError):
+    """A pty path another live process holds."""
+
+
+def _lock_path(link: Path) -> Path:
+    return link.with_name(link.name + ".lock")
+
+
+def _claim(link: Path) -> int:
+    """Hold ``LINK.lock`` (an flock, which the kernel releases when this process ends, however it
+    ends) while ``link`` is this bridge's. Why: a second emulator given the same path replaced the
+    first one's symlink without a word, and a link opening the path then talked to whichever
+    emulator came last (a HIL recording mixed two vessels). A lock left by a process that has
+    ended is free and taken over. Returns the lock's fd; raises ``PortInUse`` naming the holder."""
+    path = _lock_path(link)
+    while True:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.read(fd, 32).decode(errors="replace").strip() or "?"
+            os.close(fd)
+            raise PortInUse(f"{link}: in use by another process (pid {holder}, e.g. another "
+                            "`seafmu emulate`): stop it, or give another pty:PATH") from None
+        # the holder before us may have removed the file between our open and our lock (it does so
+        # at close, still holding it): a lock on a removed file guards nothing, so take the new one
+        try:
+            same = os.stat(path).st_ino == os.fstat(fd).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            os.ftruncate(fd, 0)
+            os.write(fd, f"{os.getpid()}\n".encode())
+            return fd
+        os.close(fd)
 
 
 class NullModem:
@@ -35,15 +73,23 @@ class NullModem:
         self._fds = [ma, mb, sa, sb]
         self.a, self.b = os.ttyname(sa), os.ttyname(sb)
         self.dropped = 0
-        self._links: list[Path] = []
-        for link, target in ((link_a, self.a), (link_b, self.b)):
-            if link is not None:
-                p = Path(link)
-                p.parent.mkdir(parents=True, exist_ok=True)
-                with contextlib.suppress(FileNotFoundError):
-                    p.unlink()
-                p.symlink_to(target)
-                self._links.append(p)
+        self._links: list[tuple[Path, str, int]] = []  # (symlink, its target, its lock's fd)
+        try:
+            for link, target in ((link_a, self.a), (link_b, self.b)):
+                if link is not None:
+                    p = Path(link)
+                    p.parent.mkdir(parents=True, exist_ok=True)
+                    self._links.append((p, target, _claim(p)))
+                    if p.is_symlink():
+                        p.unlink()  # left by a process that ended without closing
+                    elif p.exists():
+                        raise PortInUse(f"{p}: exists and is not a pty link: give another pty:PATH")
+                    p.symlink_to(target)
+        except BaseException:
+            self._release_links()
+            for fd in self._fds:
+                os.close(fd)
+            raise
         self._wake_r, self._wake_w = os.pipe()
         self._stop = False
         self._thread = threading.Thread(target=self._run, name="null-modem", daemon=True)
@@ -79,9 +125,18 @@ class NullModem:
             with contextlib.suppress(OSError):
                 os.close(fd)
         self._fds = []
-        for p in self._links:
+        self._release_links()
+
+    def _release_links(self) -> None:
+        """Remove this bridge's symlinks (only while they still point at its ptys) and their locks."""
+        for p, target, lock in self._links:
             with contextlib.suppress(OSError):
-                p.unlink()
+                if os.readlink(p) == target:
+                    p.unlink()
+            with contextlib.suppress(OSError):
+                _lock_path(p).unlink()  # still holding the lock: see _claim
+            os.close(lock)
+        self._links = []
 
     def __enter__(self) -> NullModem:
         return self

@@ -6,8 +6,11 @@ from __future__ import annotations
 import os
 import tempfile
 from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
 
 import pytest
+import yaml
 
 from seafmu.build import build_all
 from seafmu.components.vessel_spec import VesselSpec, load_vessel
@@ -46,6 +49,29 @@ def built_fmus() -> dict[tuple[str, str], object]:
 
     build_all()
     return {(v, k): fmu_path(v, k) for v in VESSELS for k in KINDS}
+
+
+@dataclass(frozen=True)
+class Ports:
+    profile: Path  # the bundled emulator_pty profile, on these ports
+    serial: Path  # where the emulator links its NMEA pty (``--serial pty:PATH``)
+    slcan: Path  # and its SLCAN pty (``--can slcan:pty:PATH``)
+
+
+@pytest.fixture
+def own_ports(tmp_path: Path) -> Ports:
+    """The bundled ``emulator_pty`` profile on this test's own pseudo-terminal paths: the shared
+    /tmp/seafmu-emulator paths are held by whichever emulator runs there (another test session, a
+    user's), and a second emulator is refused."""
+    from seafmu.scenario import REPO
+
+    ports = tmp_path / "ports"
+    ports.mkdir()
+    doc = yaml.safe_load((REPO / "hardware" / "profiles" / "emulator_pty.yaml").read_text())
+    doc["serial"]["url"], doc["can"]["channel"] = str(ports / "nmea"), str(ports / "slcan")
+    profile = ports / "emulator_pty.yaml"
+    profile.write_text(yaml.safe_dump(doc, sort_keys=False))
+    return Ports(profile, ports / "nmea", ports / "slcan")
 
 
 # Tests that take several seconds each (fresh processes, cross-process links, other engines, long

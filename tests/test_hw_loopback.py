@@ -13,9 +13,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from conftest import Ports
 
 from seafmu.components.vessel_spec import load_vessel
-from seafmu.hardware.profile import load_profile
 from seafmu.identification.maneuver import load_maneuver_csv
 from seafmu.identification.trial import load_trial
 from seafmu.master import run
@@ -28,16 +28,14 @@ STEP_AT, STEP_NORTH = 3.0, 1.0  # a 1 m north setpoint step, so the vessel moves
 # data one step later, commands applied at the emulator's 10 ms ticks, not at step boundaries).
 TOL_POSITION = 0.02  # m
 TOL_ANGLE = 0.005  # rad
-# where the emulator links its pseudo-terminals: the bundled profile emulator_pty points there
-_PROFILE = load_profile("emulator_pty")
-SERIAL, SLCAN = _PROFILE.serial.url, _PROFILE.can.channel
 
 
-def _hil_scenario(tmp_path: Path) -> Path:
-    """minerva2_dp with the plant replaced by the hardware link (its checks need true states)."""
+def _hil_scenario(tmp_path: Path, profile: Path) -> Path:
+    """minerva2_dp with the plant replaced by the hardware link of ``profile`` (the bundled
+    emulator_pty on this test's own ports; its checks need true states)."""
     doc = yaml.safe_load((REPO / "scenarios" / "minerva2_dp.yaml").read_text())
     doc["name"] = "minerva2_dp_hil"
-    doc["fmus"]["plant"] = {"hardware": "emulator_pty"}
+    doc["fmus"]["plant"] = {"hardware": str(profile)}
     doc["duration"] = DURATION
     doc["record_interval"] = 0.05
     doc["events"] = [{"time": STEP_AT, "set": "controller.north_ref", "value": STEP_NORTH}]
@@ -47,7 +45,7 @@ def _hil_scenario(tmp_path: Path) -> Path:
     return path
 
 
-def _emulator(tmp_path: Path) -> tuple[subprocess.Popen[str], dict[str, str]]:
+def _emulator(tmp_path: Path, ports: Ports) -> tuple[subprocess.Popen[str], dict[str, str]]:
     proc = subprocess.Popen(
         [
             sys.executable,
@@ -55,9 +53,9 @@ def _emulator(tmp_path: Path) -> tuple[subprocess.Popen[str], dict[str, str]]:
             "seafmu.emulate",
             "minerva2",
             "--serial",
-            f"pty:{SERIAL}",
+            f"pty:{ports.serial}",
             "--can",
-            f"slcan:pty:{SLCAN}",
+            f"slcan:pty:{ports.slcan}",
             "--scenario",
             "minerva2_dp",
             "--duration",
@@ -75,16 +73,17 @@ def _emulator(tmp_path: Path) -> tuple[subprocess.Popen[str], dict[str, str]]:
     return proc, dict(item.split("=", 1) for item in line.split()[1:])
 
 
-def test_dp_across_processes_holds_position_and_matches_simulation(tmp_path: Path, built_fmus: dict) -> None:
+def test_dp_across_processes_holds_position_and_matches_simulation(tmp_path: Path, built_fmus: dict,
+                                                                   own_ports: Ports) -> None:
     sc = load_scenario("minerva2_dp")
     sc = dataclasses.replace(
         sc, duration=DURATION, record_every=1, events=[(STEP_AT, "controller", "north_ref", STEP_NORTH)]
     )
     sim = run(sc, progress=False)
 
-    hil_sc = load_scenario(_hil_scenario(tmp_path))
-    assert hil_sc.realtime and hil_sc.instance("plant").hardware == "emulator_pty"
-    proc, _ = _emulator(tmp_path)
+    hil_sc = load_scenario(_hil_scenario(tmp_path, own_ports.profile))
+    assert hil_sc.realtime and hil_sc.instance("plant").hardware == str(own_ports.profile)
+    proc, _ = _emulator(tmp_path, own_ports)
     try:
         hil = run(hil_sc, progress=False, record_dir=tmp_path / "rec")  # seafmu's own master
     finally:

@@ -22,10 +22,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from conftest import Ports
 
 from seafmu.components.thrusters import thruster_matrix
 from seafmu.components.vessel_spec import load_vessel
-from seafmu.hardware.profile import load_profile
 from seafmu.identification.diagnosis import diagnose, maneuver_data
 from seafmu.identification.effects.thruster_loss import thruster_of
 from seafmu.identification.fitting import nrmse
@@ -165,9 +165,9 @@ HIL_EVENTS = [(1.0, "north_ref", 2.0), (6.0, "east_ref", 2.0), (11.0, "yaw_ref",
               (16.0, "down_ref", 6.0)]
 
 
-def _hil_scenarios(tmp_path: Path) -> tuple[Path, Path]:
+def _hil_scenarios(tmp_path: Path, profile: str = "emulator_pty") -> tuple[Path, Path]:
     """(the emulated vessel's scenario: minerva2_dp without current, the short maneuver; the same
-    with the plant replaced by the hardware link)."""
+    with the plant replaced by the hardware link of ``profile``)."""
     doc = yaml.safe_load((REPO / "scenarios" / "minerva2_dp.yaml").read_text())
     doc["name"] = "minerva2_thruster_loss"
     doc["duration"] = HIL_DURATION
@@ -178,7 +178,7 @@ def _hil_scenarios(tmp_path: Path) -> tuple[Path, Path]:
     sim = tmp_path / "sim.yaml"
     sim.write_text(yaml.safe_dump(doc, sort_keys=False))  # the FMU order is the stepping order
     doc["name"] = "minerva2_thruster_loss_hil"
-    doc["fmus"]["plant"] = {"hardware": "emulator_pty"}
+    doc["fmus"]["plant"] = {"hardware": profile}
     doc["checks"] = [{"signal": "plant.watchdog_alarm", "metric": "max", "max": 0}]
     hil = tmp_path / "hil.yaml"
     hil.write_text(yaml.safe_dump(doc, sort_keys=False))
@@ -186,13 +186,13 @@ def _hil_scenarios(tmp_path: Path) -> tuple[Path, Path]:
 
 
 @pytest.mark.slow
-def test_lost_thruster_located_in_a_hardware_recording(tmp_path: Path, built_fmus: dict) -> None:
-    profile = load_profile("emulator_pty")
-    sim_path, hil_path = _hil_scenarios(tmp_path)
+def test_lost_thruster_located_in_a_hardware_recording(tmp_path: Path, built_fmus: dict,
+                                                        own_ports: Ports) -> None:
+    sim_path, hil_path = _hil_scenarios(tmp_path, str(own_ports.profile))
     t0 = time.perf_counter()
     proc = subprocess.Popen(
-        [sys.executable, "-m", "seafmu.emulate", "minerva2", "--serial", f"pty:{profile.serial.url}",
-         "--can", f"slcan:pty:{profile.can.channel}", "--scenario", str(sim_path),
+        [sys.executable, "-m", "seafmu.emulate", "minerva2", "--serial", f"pty:{own_ports.serial}",
+         "--can", f"slcan:pty:{own_ports.slcan}", "--scenario", str(sim_path),
          "--thruster-efficiency", f"{HIL_LOST}={HIL_EFFICIENCY}", "--duration", str(HIL_DURATION + 2.0)],
         cwd=REPO, stdout=subprocess.PIPE, text=True)
     try:
