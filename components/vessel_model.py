@@ -26,7 +26,9 @@ Two implementations of the same right-hand side exist on purpose:
 Mass matrices: the symmetric parts of M_RB and M_A are used everywhere (inertia and Coriolis).
 Potential-flow added mass is symmetric in theory; the published Minerva 2 matrix is slightly
 asymmetric (panel-code error), and with an asymmetric inertia matrix the Coriolis terms would do
-work, so the model would have no conserved mechanical energy to check against.
+work, so the model would have no conserved mechanical energy to check against. A vessel file with
+``inertia: published`` takes M = M_RB + M_A as the file gives them for the inertia (Coriolis still
+from the symmetric parts, as Fossen's ``m2c`` does), to compare with a model written that way.
 """
 
 from __future__ import annotations
@@ -57,9 +59,9 @@ class VesselModel:
         self.dof = dof = spec.dof
         self.m = m = spec.thrusters.count
         self.n_states = 2 * dof + m
-        self.M_RB = _sym(spec.M_RB)
+        self.M_RB = _sym(spec.M_RB)  # Coriolis and the current's inertia term act through these
         self.M_A = _sym(spec.M_A)
-        self.M = self.M_RB + self.M_A
+        self.M = self.M_RB + self.M_A if spec.inertia == "symmetric" else np.asarray(spec.M, float)
         self.Minv = np.linalg.inv(self.M)
         self.D_L = np.array(spec.D_L, dtype=float)
         self.D_Q = np.array(spec.D_Q, dtype=float)

@@ -46,6 +46,10 @@ CORIOLIS_FORMS = ("full", "none")  # C_RB(nu) nu + C_A(nu_r) nu_r, or no Corioli
 # What the inertia acts on in a current: M nu_dot (section 1 of the brief) or M nu_r_dot (Fossen's
 # linear DP model, M nu_r_dot + D nu_r = tau; they differ by M (omega x nu_c) while turning).
 CURRENT_INERTIA = ("absolute", "relative", "added")
+# The inertia M in M nu_dot: the symmetric parts of the file's M_RB and M_A (default), or the file's
+# matrices as published (Fossen's vehicle models: M = M_RB + M_A as given, its Coriolis from the
+# symmetric parts), for comparing with a model written that way.
+INERTIA_FORMS = ("symmetric", "published")
 # Units a thruster's speed and thrust coefficient may be given in (``unit:`` beside value and
 # source), with the conversion to what the model works in: shaft speeds in rev/s.
 SPEED_UNITS: dict[str, Callable[[float], float]] = {
@@ -68,7 +72,8 @@ MAX_CONDITION = 1e12  # largest / smallest eigenvalue of the total mass matrix
 
 # The keys the loader reads; any other is refused (``_Reader.fields``).
 TOP_FIELDS = ("name", "title", "dof", "mass_matrix", "added_mass", "linear_damping", "quadratic_damping",
-              "restoring", "coriolis", "current_inertia", "thrusters", "sensors", "gnc", "extra")
+              "restoring", "coriolis", "current_inertia", "inertia", "thrusters", "sensors", "gnc",
+              "extra")
 RESTORING_FIELDS = ("weight", "buoyancy", "r_g", "r_b")  # 6 DOF only
 THRUSTERS_FIELDS = ("law", "units")
 THRUSTER_FIELDS = ("name", "position", "direction", "k_forward", "k_reverse", "n_max", "time_constant")
@@ -160,6 +165,7 @@ class VesselSpec:
     gnc: GncSpec | None = None  # always set by the loader (the file's gnc section is required)
     coriolis: str = "full"  # one of CORIOLIS_FORMS
     current_inertia: str = "absolute"  # one of CURRENT_INERTIA
+    inertia: str = "symmetric"  # one of INERTIA_FORMS
 
     @property
     def M(self) -> np.ndarray:
@@ -416,6 +422,9 @@ def _parse(doc: dict, path: Path) -> VesselSpec:
     if current_inertia not in CURRENT_INERTIA:
         raise r.fail("current_inertia", f"must be one of {', '.join(CURRENT_INERTIA)}, "
                      f"got {current_inertia!r}")
+    inertia = r.get(doc, "inertia", "", required=False) or "symmetric"
+    if inertia not in INERTIA_FORMS:
+        raise r.fail("inertia", f"must be one of {', '.join(INERTIA_FORMS)}, got {inertia!r}")
 
     thrusters = _parse_thrusters(r, doc, dof)
     sensors = _parse_sensors(r, doc, dof)
@@ -439,6 +448,7 @@ def _parse(doc: dict, path: Path) -> VesselSpec:
         gnc=gnc,
         coriolis=coriolis,
         current_inertia=current_inertia,
+        inertia=inertia,
     )
 
 

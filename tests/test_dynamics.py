@@ -194,6 +194,33 @@ def test_inertia_in_a_current_is_the_named_form(name: str, form: str) -> None:
         np.testing.assert_allclose(nu_dot, expected, rtol=1e-6, atol=1e-7 * np.abs(expected).max())
 
 
+def test_published_inertia_takes_the_files_matrices_as_given() -> None:
+    """``inertia: published``: M nu_dot with M = M_RB + M_A exactly as the file gives them (Minerva 2's
+    added mass is asymmetric: A35 = 61.56, A53 = 148.2), Coriolis from the symmetric parts (as
+    Fossen's m2c), in the compiled right-hand side and the matrix form; the default differs."""
+    import dataclasses
+
+    vs = dataclasses.replace(load_vessel("minerva2_published_damping"), inertia="published")
+    assert np.abs(vs.M_A - vs.M_A.T).max() > 80  # the published matrix, not a symmetrised copy
+    model, default = VesselModel(vs), VesselModel(dataclasses.replace(vs, inertia="symmetric"))
+    M_RB, M_A = 0.5 * (vs.M_RB + vs.M_RB.T), 0.5 * (vs.M_A + vs.M_A.T)
+    rs = vs.restoring
+    for _ in range(10):
+        eta = RNG.normal(scale=[1, 1, 1, 0.3, 0.3, 2])
+        nu = RNG.normal(scale=0.4, size=6)
+        n = RNG.uniform(-1, 1, vs.thrusters.count) * vs.thrusters.n_max
+        rest = (m2c(M_RB, nu) @ nu + m2c(M_A, nu) @ nu + vs.D_L @ nu + vs.D_Q @ (np.abs(nu) * nu)
+                + gvect(rs.weight, rs.buoyancy, eta[4], eta[3], rs.r_g, rs.r_b))
+        tau = model.B @ model.thrust(n)
+        expected = np.linalg.solve(vs.M_RB + vs.M_A, tau - rest)
+        x = model.initial_state(eta, nu, n)
+        scale = np.abs(expected).max()
+        np.testing.assert_allclose(model.rhs(x, model.clip(n), 0.0, 0.0)[6:12], expected, atol=1e-10 * scale)
+        np.testing.assert_allclose(model.derivative(eta, nu, tau)[1], expected, atol=1e-10 * scale)
+        other = default.rhs(x, default.clip(n), 0.0, 0.0)[6:12]
+        assert np.abs(other - expected).max() > 1e-4 * scale  # the option changes the dynamics
+
+
 @pytest.mark.parametrize("name", _vessels())
 def test_observer_model_equals_the_plant_matrix_form(name: str) -> None:
     """The EKF's f(x) (tensor Coriolis, unrolled restoring) = VesselModel.derivative with tau + b."""

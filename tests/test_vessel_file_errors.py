@@ -50,6 +50,8 @@ def _unit(doc: dict, i: int = 0) -> dict:
 @pytest.mark.parametrize("base, edit, message", [
     ("supply", lambda d: _rename(d, "current_inertia", "current_inertial"),
      "field 'current_inertial': unknown field; did you mean 'current_inertia'?"),
+    ("minerva2", lambda d: d.update(inertia="asymmetric"),
+     "field 'inertia': must be one of symmetric, published, got 'asymmetric'"),
     ("minerva2", lambda d: _rename(d, "mass_matrix", "mass_matirx"),
      "field 'mass_matirx': unknown field; did you mean 'mass_matrix'?"),
     ("minerva2", lambda d: d["sensors"][0].update(bais={"value": [0.1, 0.1], "source": "x"}),
