@@ -68,13 +68,25 @@ class Feedback:
     faults: int | None
 
 
-def _check(msg: can.Message, length: int, name: str) -> None:
+def _check(msg: can.Message, m: cantools.database.Message) -> None:
+    """Drop what only has ``m``'s id: an error or remote frame, CAN FD where the DBC says classic
+    (or the reverse), a wrong length. Data bytes and DLC are reported apart: python-can keeps an
+    SLCAN line's DLC digit however few data bytes follow (``t1814``: DLC 4, 0 data bytes)."""
+    where, length = f"{m.name} (0x{msg.arbitration_id:X})", m.length
+    if msg.is_error_frame:
+        raise CanFrameError("unexpected", f"error frame with the id of {where}")
     if msg.is_remote_frame:
-        raise CanFrameError("unexpected", f"remote frame {name} (0x{msg.arbitration_id:X})")
-    if msg.dlc != length or len(msg.data) != length:
+        raise CanFrameError("unexpected", f"remote frame {where}")
+    if bool(msg.is_fd) != bool(m.is_fd):
+        fmt = "CAN FD" if msg.is_fd else "classic CAN"
+        raise CanFrameError("unexpected", f"{fmt} frame {where}: the DBC defines the other format")
+    n = len(msg.data)
+    if msg.dlc != n:
         raise CanFrameError(
-            "wrong_dlc", f"{name} (0x{msg.arbitration_id:X}): DLC {msg.dlc}, expected {length}"
+            "wrong_dlc", f"{where}: {n} data bytes where its DLC says {msg.dlc} (the message has {length})"
         )
+    if n != length:
+        raise CanFrameError("wrong_dlc", f"{where}: DLC {n}, expected {length}")
 
 
 class ThrusterCodec(ABC):
@@ -153,7 +165,7 @@ class SeafmuCodec(ThrusterCodec):
             raise CanFrameError("unknown_id", f"unknown CAN id 0x{msg.arbitration_id:X}")
         kind, i = entry
         m = self._cmd[i] if kind == "cmd" else self._sts[i]
-        _check(msg, m.length, m.name)
+        _check(msg, m)
         try:
             d = m.decode(bytes(msg.data), decode_choices=False, scaling=True)
         except (DecodeError, ValueError) as exc:
@@ -260,7 +272,7 @@ class Nmea2000Codec(ThrusterCodec):
             m = self._motor
         else:
             raise CanFrameError("unknown_id", f"unknown CAN id 0x{msg.arbitration_id:X} (PGN {pgn})")
-        _check(msg, m.length, m.name)
+        _check(msg, m)
         try:
             d = m.decode(bytes(msg.data), decode_choices=False, scaling=True)
         except (DecodeError, ValueError) as exc:

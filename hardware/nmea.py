@@ -6,10 +6,10 @@ the wire uses each sentence's own units (degrees, knots, metres, ddmm.mmmm latit
 
 | sentence | channels | wire |
 |---|---|---|
-| GGA | north, east | position fix; lat/lon about the profile's NED origin |
-| RMC | north, east (+ course, sog) | position, course and speed over ground (knots) |
-| VTG | course, sog | course over ground (deg true), speed (knots and km/h) |
-| HDT, THS | yaw | true heading, deg (THS adds a mode; pynmea2 lacks THS, it is registered here) |
+| GGA | north, east | position fix (quality 1-5 only); lat/lon about the profile's NED origin |
+| RMC | north, east (+ course, sog) | position, course and speed over ground (knots); mode as GGA |
+| VTG | course, sog | course over ground (deg true), speed (knots and km/h); mode as GGA |
+| HDT, THS | yaw | true heading, deg (HDT: reference T required; THS adds a mode; pynmea2 lacks THS) |
 | DPT, DBT | down | depth, m (DPT: depth + offset; DBT: the metres field, else feet or fathoms) |
 | XDR_ATTITUDE | roll, pitch | XDR transducers ``A,<deg>,D,ROLL`` / ``PITCH`` (the usual AHRS convention) |
 | XDR_RATES | p, q, r | XDR transducers ``A,<deg/s>,D,ROLLRATE`` / ``PITCHRATE`` / ``YAWRATE`` |
@@ -217,13 +217,42 @@ def _enc_gga(v: dict[str, float], t: datetime, ctx: Ctx) -> pynmea2.NMEASentence
     )
 
 
+# GGA fix quality (NMEA 0183): only 1-5 (and 9, SBAS, which some receivers send) are measured
+# positions; 0 and 6-8 are the receiver saying
+# it has none (a dead-reckoned, typed-in or simulated position must not reach the observer as a fix)
+_GGA_MEASURED = {"1": "GPS", "2": "DGPS", "3": "PPS", "4": "RTK fixed", "5": "RTK float",
+                 "9": "SBAS (WAAS/EGNOS: some receivers' differential fix)"}
+_GGA_NOT_MEASURED = {"0": "no fix", "6": "estimated/dead reckoning", "7": "manual input", "8": "simulation"}
+
+
 def _dec_gga(m: pynmea2.NMEASentence, ctx: Ctx) -> dict[str, float]:
-    if _field(m, 5, "GGA fix quality") in ("", "0"):
-        raise NmeaError("invalid", "GGA: no fix (quality 0)")
+    quality = _field(m, 5, "GGA fix quality")
+    if quality == "":
+        raise NmeaError("invalid", "GGA: fix quality empty (no fix)")
+    if quality in _GGA_NOT_MEASURED:
+        raise NmeaError(
+            "invalid", f"GGA: fix quality {quality} ({_GGA_NOT_MEASURED[quality]}), not a measured position"
+        )
+    if quality not in _GGA_MEASURED:
+        raise NmeaError("malformed",
+                        f"GGA: fix quality {quality!r} is not one of NMEA 0183's 0-8 (or 9, SBAS)")
     lat = _parse_latlon(_field(m, 1, "GGA latitude"), _field(m, 2, "GGA N/S"), 2, "GGA latitude")
     lon = _parse_latlon(_field(m, 3, "GGA longitude"), _field(m, 4, "GGA E/W"), 3, "GGA longitude")
     n, e = ctx.frame.to_ned(lat, lon)
     return {"north": n, "east": e}
+
+
+# RMC/VTG mode indicator (NMEA 0183 2.3+; absent before): the same rule as GGA's quality
+_MODE_MEASURED = {"A", "D", "F", "P", "R"}  # autonomous, differential, float RTK, precise, RTK
+_MODE_NOT_MEASURED = {"E": "estimated/dead reckoning", "M": "manual input", "S": "simulation", "N": "no fix"}
+
+
+def _check_mode(m: pynmea2.NMEASentence, i: int, kind: str) -> None:
+    mode = m.data[i] if len(m.data) > i else ""
+    if mode in _MODE_NOT_MEASURED:
+        raise NmeaError("invalid", f"{kind}: mode {mode} ({_MODE_NOT_MEASURED[mode]}), not a measurement")
+    if mode and mode not in _MODE_MEASURED:
+        raise NmeaError("malformed", f"{kind}: mode indicator {mode!r} is not NMEA 0183's")
 
 
 def _enc_rmc(v: dict[str, float], t: datetime, ctx: Ctx) -> pynmea2.NMEASentence:
@@ -253,6 +282,7 @@ def _enc_rmc(v: dict[str, float], t: datetime, ctx: Ctx) -> pynmea2.NMEASentence
 def _dec_rmc(m: pynmea2.NMEASentence, ctx: Ctx) -> dict[str, float]:
     if _field(m, 1, "RMC status") != "A":
         raise NmeaError("invalid", "RMC: status not A (no valid fix)")
+    _check_mode(m, 11, "RMC")
     lat = _parse_latlon(_field(m, 2, "RMC latitude"), _field(m, 3, "RMC N/S"), 2, "RMC latitude")
     lon = _parse_latlon(_field(m, 4, "RMC longitude"), _field(m, 5, "RMC E/W"), 3, "RMC longitude")
     n, e = ctx.frame.to_ned(lat, lon)
@@ -274,6 +304,7 @@ def _enc_vtg(v: dict[str, float], t: datetime, ctx: Ctx) -> pynmea2.NMEASentence
 
 
 def _dec_vtg(m: pynmea2.NMEASentence, ctx: Ctx) -> dict[str, float]:
+    _check_mode(m, 8, "VTG")
     if _field(m, 4, "VTG speed (kn)"):
         sog = _num(m.data[4], "VTG speed (kn)") * KNOT
     else:
@@ -296,8 +327,11 @@ def _dec_heading(m: pynmea2.NMEASentence, ctx: Ctx) -> dict[str, float]:
     kind = type(m).__name__
     if kind == "THS" and _field(m, 1, "THS mode") == "V":
         raise NmeaError("invalid", "THS: mode V (data not valid)")
-    if kind == "HDT" and len(m.data) > 1 and m.data[1] not in ("T", ""):
-        raise NmeaError("malformed", f"HDT: heading reference {m.data[1]!r}, expected T (true)")
+    if kind == "HDT":  # without its T, nothing says the heading is true rather than magnetic
+        ref = m.data[1] if len(m.data) > 1 else None
+        if ref != "T":
+            got = "missing" if ref is None else repr(ref)
+            raise NmeaError("malformed", f"HDT: heading reference {got}, expected T (true)")
     return {"yaw": _heading_field(_field(m, 0, f"{kind} heading"), f"{kind} heading")}
 
 
@@ -343,9 +377,14 @@ def _dec_xdr(m: pynmea2.NMEASentence, ctx: Ctx) -> dict[str, float]:
     if len(m.data) % 4 or not m.data:
         raise NmeaError("malformed", "XDR: transducer fields come in fours")
     out: dict[str, float] = {}
+    seen: set[str] = set()
     for i in range(0, len(m.data), 4):
         kind, value, unit, ident = m.data[i : i + 4]
         ch = _XDR_CHANNEL.get(ident.upper())
+        if ch is not None:  # two values for one transducer: which is the measurement is unknowable
+            if ch in seen:
+                raise NmeaError("malformed", f"XDR: transducer {ident} appears twice (ambiguous)")
+            seen.add(ch)
         if ch is None or kind != "A":
             continue  # other transducers (temperature, pressure, ...) are not plant channels
         if unit != "D":
@@ -516,6 +555,12 @@ class NmeaCodec:
         line = line.strip()
         if not line.startswith(("$", "!")):
             raise NmeaError("malformed", f"not a sentence: {line[:40]!r}")
+        # NMEA 0183 is printable ASCII with $ and ! only as the start delimiter: anything else is a
+        # corrupted line or two sentences run together, even when the checksum happens to match
+        if not (line.isascii() and line.isprintable()):
+            raise NmeaError("malformed", f"non-printable or non-ASCII character in {line[:60]!r}")
+        if "$" in line[1:] or "!" in line[1:]:
+            raise NmeaError("malformed", f"$ or ! inside the sentence (two run together?): {line[:60]!r}")
         try:
             msg = pynmea2.parse(line, check=True)
         except pynmea2.ChecksumError:
@@ -523,6 +568,8 @@ class NmeaCodec:
             raise NmeaError("checksum", f"{what}: {line[:60]!r}") from None
         except (pynmea2.ParseError, ValueError, TypeError, AttributeError, IndexError) as exc:
             raise NmeaError("malformed", f"cannot parse {line[:60]!r} ({type(exc).__name__})") from None
+        if isinstance(msg, pynmea2.QuerySentence):  # a request for a sentence, carrying no data
+            raise NmeaError("unsupported", f"query for {msg.sentence_type} from {msg.talker}: no data")
         kind = getattr(msg, "sentence_type", "")
         if kind == "XDR":
             values = _dec_xdr(msg, self.ctx)
