@@ -17,10 +17,10 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, NoReturn
 
-from seafmu.outdir import nonempty_path
+from seafmu.outdir import nonempty_path, os_error_text
 
 if TYPE_CHECKING:
-    from seafmu.master import StopRequest
+    from seafmu.master import RunResult, StopRequest
     from seafmu.plots import Plotter
     from seafmu.scenario import Scenario
 
@@ -171,6 +171,7 @@ def _run(args: argparse.Namespace, stop: StopRequest, plotter: Plotter | None = 
     out = Path(args.output) if args.output else Path("results") / sc.name
     mode = "inprocess" if args.inprocess else "fmu"
     error = ""
+    result: RunResult | None = None
     with RunFolder(out):  # locked for this run, the previous run's outputs removed
         write_placeholder_report(sc.name, out)
         try:
@@ -181,15 +182,24 @@ def _run(args: argparse.Namespace, stop: StopRequest, plotter: Plotter | None = 
             try:
                 result = run(sc, mode=mode, progress=not args.quiet and not sc.realtime, record_dir=record,
                              stop=stop, sink=csv)
-            except SimulationError as exc:
+            except SimulationError as exc:  # failed mid-run: the results up to there are reported
                 if exc.partial is None:
                     raise
                 result, error = exc.partial, str(exc)
             finally:
-                csv.close()
-        except Exception as exc:  # nothing recorded: the report says why, then the usual one line
-            write_failure_report(sc.name, out, " ".join(str(exc).split()))
-            raise
+                try:
+                    csv.close()
+                except OSError as exc:  # its last flush names no file
+                    exc.filename = exc.filename or str(csv.path)
+                    raise
+        except Exception as exc:
+            if result is None:  # nothing recorded: the report says why, then the usual one line
+                write_failure_report(sc.name, out, " ".join(_describe(exc).split()))
+                raise
+            # steps ran, but results.csv could not be completed (a full disk): the results in
+            # memory still make the summary and the report, which say so
+            error = error or " ".join(_describe(exc).split())
+            result.error = result.error or error
         checks = evaluate_checks(result)
         data = summary(result, checks)
         write_summary(data, out / "summary.json")
@@ -362,9 +372,7 @@ def main(argv: list[str] | None = None) -> int:
 def _describe(exc: BaseException) -> str:
     """An OSError as '<file>: <what is wrong>' (its str is '[Errno 17] File exists: '<file>''),
     the format of every other error."""
-    if isinstance(exc, OSError) and exc.strerror and exc.filename is not None:
-        return f"{exc.filename}: {exc.strerror[:1].lower()}{exc.strerror[1:]}"
-    return str(exc)
+    return os_error_text(exc) if isinstance(exc, OSError) else str(exc)
 
 
 if __name__ == "__main__":

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import logging
 import math
 import signal
 import time
@@ -42,6 +43,7 @@ from typing import Any, Literal, Protocol
 import numpy as np
 
 from seafmu.fmu_cache import unpacked
+from seafmu.outdir import os_error_text
 from seafmu.scenario import MAX_RESULT_BYTES, MAX_STEPS, Instance, Scenario
 from seafmu.unit import Unit, UnitRequest, is_paced, make_unit, register_unit_kind, run_errors, unit_kind
 
@@ -487,7 +489,9 @@ def run(scenario: Scenario, mode: Mode = "fmu", progress: bool = True,
     An instance with a hardware profile is a ``HardwareLink`` (a real or emulated vessel); the link
     paces the loop to the wall clock and records its traffic under ``record_dir``. ``stop``, once
     requested, ends the loop before the next master step (``RunResult.interrupted``); ``sink``
-    receives the recorded rows in chunks while the run goes.
+    receives the recorded rows in chunks while the run goes. A recording file that cannot be
+    written stops the recording, not the run (its warning joins ``RunResult.log``); an OSError
+    that ends the run mid-way is a SimulationError naming the file, with ``partial`` results.
     """
     # load_scenario bounds these; a Scenario changed in code (dataclasses.replace) is checked here
     if scenario.n_steps > MAX_STEPS or scenario.result_bytes > MAX_RESULT_BYTES:
@@ -501,31 +505,65 @@ def run(scenario: Scenario, mode: Mode = "fmu", progress: bool = True,
 
     units: list[Unit] = []
     kinds = {unit_kind(inst, mode) for inst in scenario.instances}
-    try:
-        for inst in scenario.instances:
-            fmu_file = inst.fmu_file or (fmu_files or {}).get(inst.name)
-            in_names = [dv for dv, _, _ in inputs_of.get(inst.name, [])]
-            request = UnitRequest(inst, in_names, scenario.vessel, log, record_dir=record_dir,
-                                  fmu_file=Path(fmu_file) if fmu_file else None)
-            units.append(make_unit(unit_kind(inst, mode), request))
-        unit_errors = run_errors(kinds)
+    links = [inst.name for inst in scenario.instances if inst.hardware is not None]
+    with _recording_warnings(log, links):  # the links' close included
         try:
-            result = _loop(scenario, units, mode, progress, log, stop, sink)
-        except unit_errors as exc:  # a port that cannot open, a vessel that never answers
-            err = SimulationError(" ".join(str(exc).split()))
-            err.partial = getattr(exc, "partial", None)
-            if err.partial is not None:
-                err.partial.error = str(err)
-            raise err from None
-        paced = [u for u in units if is_paced(u)]
-        if paced:
-            stats = paced[0].pacing_stats()
-            result.pacing, result.pacing_summary = stats.as_dict(), stats.summary()
-        return result
+            for inst in scenario.instances:
+                fmu_file = inst.fmu_file or (fmu_files or {}).get(inst.name)
+                in_names = [dv for dv, _, _ in inputs_of.get(inst.name, [])]
+                request = UnitRequest(inst, in_names, scenario.vessel, log, record_dir=record_dir,
+                                      fmu_file=Path(fmu_file) if fmu_file else None)
+                units.append(make_unit(unit_kind(inst, mode), request))
+            unit_errors = run_errors(kinds)
+            try:
+                result = _loop(scenario, units, mode, progress, log, stop, sink)
+            except unit_errors as exc:  # a port that cannot open, a vessel that never answers
+                raise _failed(str(exc), exc) from None
+            except OSError as exc:  # a file that failed mid-run (results.csv on a full disk): name it
+                if getattr(exc, "partial", None) is None:  # before the first step: as it is
+                    raise
+                raise _failed(os_error_text(exc), exc) from None
+            paced = [u for u in units if is_paced(u)]
+            if paced:
+                stats = paced[0].pacing_stats()
+                result.pacing, result.pacing_summary = stats.as_dict(), stats.summary()
+            return result
+        finally:
+            for u in units:
+                u.collect_log()
+                _stop_unit(u)
+
+
+def _failed(text: str, exc: Exception) -> SimulationError:
+    """The one-line SimulationError of ``exc``, with the results up to it that the loop attached."""
+    err = SimulationError(" ".join(text.split()))
+    err.partial = getattr(exc, "partial", None)
+    if err.partial is not None:
+        err.partial.error = str(err)
+    return err
+
+
+@contextlib.contextmanager
+def _recording_warnings(log: list[str], links: list[str]) -> Iterator[None]:
+    """A hardware link's recorder that cannot write stops recording, not the run, and warns through
+    its logger (it holds no handle on the run): while the run goes (the links' close included),
+    each such warning is named after the links and joins the run's log, so report.md and
+    summary.json say the recording is incomplete."""
+    if not links:
+        yield
+        return
+    from seafmu.hardware.recording import log as recording_log
+
+    def keep(record: logging.LogRecord) -> bool:
+        record.msg, record.args = f"{', '.join(links)}: {record.getMessage()}", ()
+        log.append(record.msg)
+        return True  # still shown as before (stderr, or the handlers a caller set up)
+
+    recording_log.addFilter(keep)
+    try:
+        yield
     finally:
-        for u in units:
-            u.collect_log()
-            _stop_unit(u)
+        recording_log.removeFilter(keep)
 
 
 def _stop_unit(u: Unit) -> None:
@@ -627,7 +665,13 @@ def _loop(scenario: Scenario, units: list[Unit], mode: str, progress: bool, log:
     def send() -> None:
         nonlocal n_sent, last_sent
         if sink is not None and n_done > n_sent:
-            sink.write(np.column_stack([times[n_sent:n_done], rec[n_sent:n_done], extra_rec[n_sent:n_done]]))
+            try:
+                sink.write(np.column_stack([times[n_sent:n_done], rec[n_sent:n_done],
+                                            extra_rec[n_sent:n_done]]))
+            except OSError as exc:  # a write names no file: the sink's (results.csv)
+                if exc.filename is None:
+                    exc.filename = getattr(sink, "path", None)
+                raise
         n_sent, last_sent = n_done, time.perf_counter()
 
     def record(row: int, t: float) -> None:
@@ -733,6 +777,8 @@ def _loop(scenario: Scenario, units: list[Unit], mode: str, progress: bool, log:
                     raise
                 except Exception as exc:
                     err = units[j].step_error(f"step at t = {t:.3f} s", exc)
+                    if err is exc and isinstance(exc, OSError):  # a file or port: named, one line
+                        err = SimulationError(f"{units[j].name} at t = {t:.3f} s: {os_error_text(exc)}")
                     if err is exc:
                         raise
                     raise err from None
@@ -750,6 +796,7 @@ def _loop(scenario: Scenario, units: list[Unit], mode: str, progress: bool, log:
                 if m == 1 and get_some is not None:  # the outputs not read in that step
                     bus[sl] = get_outputs()
             record(n_done, k_done * h)
+        send()  # the last rows: a sink that fails here still gets the results up to there
     except BaseException as exc:
         if isinstance(exc, Exception):  # the results up to the failure travel with the error
             partial = result(perf() - wall0)
@@ -763,5 +810,4 @@ def _loop(scenario: Scenario, units: list[Unit], mode: str, progress: bool, log:
     finally:
         if bar is not None:
             bar.close()
-    send()
     return result(perf() - wall0)

@@ -155,3 +155,11 @@ class RunFolder:
 
     def __exit__(self, *exc: object) -> None:
         self.release()
+
+
+def os_error_text(exc: OSError) -> str:
+    """'<file>: <what is wrong>', the command line's wording of an OSError (its str is '[Errno 17]
+    File exists: '<file>''); its str where it names no file."""
+    if exc.strerror and exc.filename is not None:
+        return f"{exc.filename}: {exc.strerror[:1].lower()}{exc.strerror[1:]}"
+    return str(exc)

@@ -97,6 +97,8 @@ SLOW = {
                       "test_case_failing_validation_after_the_cluster_started"},
     "test_run_robustness.py": {
         "test_sigterm_of_a_hardware_run_stops_the_thrusters_and_finishes_the_recording"},
+    "test_hw_recording_errors.py": {
+        "test_a_hardware_run_whose_recording_outgrows_the_file_size_limit_runs_to_its_end"},
 }
 
 
