@@ -50,8 +50,8 @@ from .link import LOG_FIRST, HardwareError, make_thruster_codec, sensor_mapping
 from .nmea import NmeaCodec
 from .pacing import Pacer
 from .profile import CanConfig, HardwareProfile, SerialConfig, load_profile
-from .ptybridge import NullModem
-from .transport import CanPort, SerialLines
+from .ptybridge import NullModem, PortInUse
+from .transport import CanPort, SerialLines, os_reason
 
 log = logging.getLogger("seafmu.hardware.emulator")
 
@@ -123,6 +123,7 @@ class VesselEmulator:
             log=self._say,
         )
         self.faults = np.zeros(m, dtype=int)
+        self._status_count = [0] * m  # status frames sent per drive (their alive counter)
         self.n_shaft = np.zeros(m)  # the shafts' speed now (rev/s), what the status frames report
         self.started = False
         self.pacer: Pacer | None = None
@@ -154,9 +155,14 @@ class VesselEmulator:
             more = f" (further {kind} only counted)" if self._logged[kind] == LOG_FIRST else ""
             self._say(f"{text}{more}")
 
-    def open(self) -> None:
-        if not self.serial.open() or not self.can.open():
-            raise OSError(f"emulator: cannot open serial {self.profile.serial.url} or CAN {self.can.name}")
+    def open(self, labels: dict[str, str] | None = None) -> None:
+        """Open both ports; an OSError naming the one that failed (``labels``: what the user gave
+        for it, e.g. ``--serial /dev/ttyUSB0``) and the OS's reason, in one line."""
+        for port in (self.serial, self.can):
+            if not port.open(retry=False):  # the emulator exits: nothing is retried
+                label = (labels or {}).get(port.what, f"{port.what} port")
+                where = "" if port.name in label else f" {port.name}"
+                raise OSError(f"{label}: cannot open{where}: {port.error}")
 
     def _sentences(self, y: np.ndarray, now: datetime, only: list[int] | None = None) -> bytes:
         lines = []
@@ -226,7 +232,9 @@ class VesselEmulator:
             for i in range(len(u)):
                 if due or tripped[i]:  # a trip is reported at once
                     n_i = float(y[self._n_idx[i]])
-                    for msg in self.codec.status(i, n_i, bool(on[i]), int(self.faults[i]), k):
+                    self._status_count[i] += 1  # the DBC's alive counter: +1 per frame of this drive
+                    count = self._status_count[i]
+                    for msg in self.codec.status(i, n_i, bool(on[i]), int(self.faults[i]), count):
                         self.can.send(msg)
             self._write_true(y, self.t + h)
             k += 1
@@ -244,11 +252,20 @@ class VesselEmulator:
             self._record = None
 
 
-def _port(spec: str, bridges: list[NullModem]) -> tuple[str, str]:
-    """(the emulator's end, the end to give the link) of a port spec: a URL, or pty[:PATH]."""
+def _port(spec: str, bridges: list[NullModem], option: str = "--serial") -> tuple[str, str]:
+    """(the emulator's end, the end to give the link) of a port spec: a URL, or pty[:PATH]. A pty
+    that cannot be made is one line naming the option (the OS's message named only a folder)."""
     if spec == "pty" or spec.startswith("pty:"):
         link = spec[4:] or None
-        nm = NullModem(link_b=link)
+        try:
+            nm = NullModem(link_b=link)
+        except PortInUse:
+            raise
+        except OSError as exc:
+            what = f"cannot make the pty link {link}" if link else "cannot make a pty"
+            name = getattr(exc, "filename", None)
+            at = f" ({name})" if name and str(name) != link else ""
+            raise OSError(f"{option}: {what}: {os_reason(exc)}{at}") from None
         bridges.append(nm)
         return nm.a, (link or nm.b)
     return spec, spec
@@ -473,8 +490,9 @@ def run_args(args: argparse.Namespace, scenario_params: PlantParameters | None =
             print("seafmu emulate: error: --can must be INTERFACE:CHANNEL", file=sys.stderr)
             return 2
         profile, params = _checked(args, iface, channel, scenario_params)
-        ser_emu, ser_link = _port(args.serial, bridges)
-        can_emu, can_link = _port(channel, bridges) if iface == "slcan" else (channel, channel)
+        ser_emu, ser_link = _port(args.serial, bridges, f"--serial {args.serial}")
+        can_emu, can_link = (_port(channel, bridges, f"--can {args.can}") if iface == "slcan"
+                             else (channel, channel))
         profile = profile.model_copy(update={"serial": profile.serial.model_copy(update={"url": ser_emu}),
                                              "can": profile.can.model_copy(update={"channel": can_emu})})
         emu = VesselEmulator(
@@ -485,7 +503,7 @@ def run_args(args: argparse.Namespace, scenario_params: PlantParameters | None =
             args.record,
             log_line=lambda text: print(f"seafmu emulate: {text}", file=sys.stderr, flush=True),
         )
-        emu.open()
+        emu.open({"serial": f"--serial {args.serial}", "can": f"--can {args.can}"})
         stop = emu.stop_event
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, lambda *_: stop.set())

@@ -11,11 +11,13 @@ FMU's variable names, so the observer, controller and allocator FMUs connect to 
   updates on a count change, exactly as with the Plant FMU); the first complete sample of every
   sensor is awaited in ``initialize`` and counts as sample 1, like the plant's initial sample;
 - ``n_1..m`` is the thrusters' measured shaft speed from their CAN status frames (NaN before the
-  first); ``course`` and ``sog`` exist when a mapped sentence (RMC, VTG) carries them.
+  first, and while that thruster's status is stale: none for ``watchdog.timeout``); ``course`` and
+  ``sog`` exist when a mapped sentence (RMC, VTG) carries them.
 - link status: ``fault_i`` (the thruster's fault bits), ``watchdog_alarm`` (0/1),
   ``lines_dropped``, ``frames_dropped`` (bad input, running totals; physically implausible values
-  included, ``hardware/plausibility.py``), ``commands_limited`` (commands clamped or replaced
-  because NaN), ``port_losses``.
+  included, ``hardware/plausibility.py``; command frames the adapter did not take), ``commands_limited``
+  (commands clamped or replaced because NaN), ``port_losses``, ``feedback_lost`` (bit i - 1 set
+  while thruster i's status is stale).
 
 The true state (``north``, ``u``, ``thrust_i`` ...) of a real vessel is unknown: those plant
 outputs are left out, so a scenario that connects or checks them fails validation by name.
@@ -32,6 +34,10 @@ zero setpoints are on the bus no later than ``timeout`` after the last datum arr
 ``timeout - 2h`` and ``timeout - h``, plus the step jitter). Zero frames (enable off) go out at
 once, and every step while the alarm lasts. It clears when every watched source has delivered a
 new sample and is fresh again; the commands then ramp from 0 over ``resume_ramp``.
+
+Sending never holds the loop: an adapter that does not take a frame costs one short time-out
+(``transport.TX_TIMEOUT``) and the rest of that step's round is dropped and counted; the next step
+tries again with the then current commands (SLCAN: the frames queued meanwhile are discarded).
 
 Drives: every command frame carries an alive counter (+1 per frame); a drive stops a thruster
 whose fresh commands stop for its command timeout (``hardware/drive.py``), which covers what the
@@ -77,7 +83,8 @@ log = logging.getLogger("seafmu.hardware")
 THRUSTERS = "thrusters"  # watchdog source name of the CAN status frames
 LINE_CLASSES = ("checksum", "malformed", "invalid", "implausible", "line_too_long", "incomplete")
 FRAME_CLASSES = (
-    "unknown_id", "wrong_dlc", "decode", "unexpected", "implausible_feedback", "bus_error", "tx_timeout"
+    "unknown_id", "wrong_dlc", "decode", "unexpected", "implausible_feedback", "bus_error", "tx_timeout",
+    "tx_skipped",  # the rest of a command round after the adapter refused a frame
 )
 LOG_FIRST = 5  # one-line log messages per drop class before they are only counted
 CLOSE_ROUNDS = 3  # zero + disable frames per thruster sent by close(), each with a fresh alive counter
@@ -221,7 +228,8 @@ class HardwareLink:
         self._u = np.zeros(m)  # commands from the allocator
         self._sent = np.zeros(m)  # commands as last sent
         self._y = np.full(len(self.out_names), np.nan)
-        for k in ("watchdog_alarm", "lines_dropped", "frames_dropped", "commands_limited", "port_losses"):
+        for k in ("watchdog_alarm", "lines_dropped", "frames_dropped", "commands_limited", "port_losses",
+                  "feedback_lost"):
             self._y[slot[k]] = 0.0
         for i in range(m):
             self._y[slot[f"fault_{i + 1}"]] = 0.0
@@ -258,7 +266,13 @@ class HardwareLink:
         self.paces_itself = pace  # the unit protocol's pacing capability (seafmu/unit.py)
         self.pacer = Pacer(1.0)  # step set at the first do_step
         self._clock0: float | None = None
-        self._last_feedback = -math.inf
+        self._last_feedback = -math.inf  # any status frame: the watchdog's `thrusters` source
+        self._fb_rx = np.full(m, -math.inf)  # per thruster: loop time of its last status with a speed
+        self._fb_seen = np.zeros(m, dtype=bool)  # ever reported its speed
+        self._fb_lost = np.zeros(m, dtype=bool)  # status stale (older than watchdog.timeout)
+        self._fb_lost_since = np.zeros(m)
+        self._fb_losses = np.zeros(m, dtype=int)  # times each went stale (the first LOG_FIRST logged)
+        self._tx_blocked_at: float | None = None  # loop time the CAN adapter stopped taking frames
         self._prev_poll = 0.0  # loop time of the previous poll: the earliest a new datum can have come
         self._counter = 0
         self._sent_enable = np.zeros(m, dtype=bool)
@@ -339,6 +353,12 @@ class HardwareLink:
             ),
             Signal("commands_limited", "", "thruster commands clamped to n_max or replaced (NaN), total"),
             Signal("port_losses", "", "times the serial or CAN port was lost, total"),
+            Signal(
+                "feedback_lost",
+                "",
+                "thrusters whose status frames are stale (none for watchdog.timeout), as bits: "
+                "1 thruster 1, 2 thruster 2, 4 thruster 3, ...; their n_i is NaN meanwhile",
+            ),
         ]
         return Interface(inputs=inputs, outputs=outputs, parameters=[])
 
@@ -366,10 +386,10 @@ class HardwareLink:
             )
             self.recorder.write_trial(self._trial_meta())  # now too: a killed run still leaves a trial
         for port in (self.serial, self.can):
-            if not port.is_open and not port.open():
+            if not port.is_open and not port.open(retry=False):  # the run ends: nothing is retried
                 self._close_pending = True  # closed as the I/O section ends
                 raise HardwareError(
-                    f"{self.name}: cannot open {port.what} port {port.name} (profile {p.name})"
+                    f"{self.name}: cannot open {port.what} port {port.name}: {port.error} (profile {p.name})"
                 )
 
     def initial_outputs(self, values: np.ndarray) -> None:
@@ -443,19 +463,22 @@ class HardwareLink:
             for g in self.groups.values():
                 g.last_rx = t
             self._last_feedback = t
+            self._fb_rx[:] = t  # every thruster has one timeout from now to report
             self._prev_poll = t
         self._send(*self._commands(t))
 
     def _step_read(self, t: float, h: float) -> None:
         now = self._now()
         self._poll(now)
+        self._feedback_ages(now)
         self._watchdog(now, h)
         self._t = t + h
         self._update_status()
         if self.recorder is not None:
-            n = self._y[: len(self._u)]
-            n = np.where(np.isfinite(n), n, self._sent)  # before the first feedback: the command
-            thrust = speed_to_thrust(self.spec.thrusters, n)
+            n = self._y[: len(self._u)].copy()
+            early = ~self._fb_seen & ~self._fb_lost  # no status yet, within its timeout: the command
+            n[early] = self._sent[early]
+            thrust = speed_to_thrust(self.spec.thrusters, n)  # NaN while a status is stale, not made up
             self.recorder.row(t + h, np.concatenate([self._sent, self._y, thrust]))
             if now - self._last_flush >= FLUSH_EVERY:
                 self._last_flush = now
@@ -619,21 +642,47 @@ class HardwareLink:
         return u, en
 
     def _send(self, u: np.ndarray, enable: bool | np.ndarray) -> None:
-        """One command frame per thruster, all with the next alive counter."""
+        """One command frame per thruster, all with the next alive counter. Once the adapter refuses
+        a frame (``tx_blocked``) the rest of the round is not tried (counted ``tx_skipped``): each
+        would wait out its own time-out, and 7 of them held a 50 ms loop 2.5 s late."""
         en = np.broadcast_to(np.asarray(enable, dtype=bool), (len(u),))
         stamp = time.time()
         counter = self._counter
         self._counter += 1  # first: an interrupted round must not leave its value to the next one
+        blocked = False
+        sent = 0
         for i, v in enumerate(u):
+            if blocked:
+                self.counters["tx_skipped"] += 1
+                continue
             try:
                 msg = self.codec.command(i, float(v), bool(en[i]), counter)
             except (EncodeError, ValueError, OverflowError) as exc:  # never expected after the clamp
                 self._drop("command_encode", f"thruster {i + 1}: {exc}")
                 continue
-            if self.can.send(msg) and self.recorder is not None:
-                self.recorder.frame(msg, rx=False, timestamp=stamp)
+            if self.can.send(msg):
+                sent += 1
+                if self.recorder is not None:
+                    self.recorder.frame(msg, rx=False, timestamp=stamp)
+            elif self.can.tx_blocked:
+                blocked = True
+        self._tx_state(blocked, sent)
         self._sent = np.asarray(u, dtype=float).copy()
         self._sent_enable = en.copy()
+
+    def _tx_state(self, blocked: bool, sent: int) -> None:
+        """One log line when the adapter stops taking frames, one when it takes them again."""
+        if blocked and self._tx_blocked_at is None:
+            self._tx_blocked_at = self._now()
+            self._say(
+                f"CAN {self.can.name}: the adapter is not taking frames at t = {self._tx_blocked_at:.2f} s; "
+                "every step tries one frame, the rest of its round is dropped until one goes out"
+            )
+        elif not blocked and sent and self._tx_blocked_at is not None:
+            now = self._now()
+            self._say(f"CAN {self.can.name}: the adapter takes frames again at t = {now:.2f} s, "
+                      f"after {now - self._tx_blocked_at:.2f} s")
+            self._tx_blocked_at = None
 
     def _poll(self, now: float) -> None:
         since = self._prev_poll  # what arrives now came after the previous poll: stamp it so (safe side)
@@ -695,6 +744,8 @@ class HardwareLink:
         fb: Feedback = item
         if fb.speed is not None:
             self._y[fb.index] = fb.speed  # n_i are the first outputs
+            self._fb_rx[fb.index] = now
+            self._fb_seen[fb.index] = True
         if fb.faults is not None:
             old = self._y[self._slot[f"fault_{fb.index + 1}"]]
             if fb.faults != old:
@@ -712,6 +763,31 @@ class HardwareLink:
                     f"re-arming (enable 0, then a ramp from 0 over {self.profile.watchdog.resume_ramp:g} s)",
                 )
         self._last_feedback = now
+
+    def _feedback_ages(self, now: float) -> None:
+        """Per thruster: a status older than ``watchdog.timeout`` is stale, so its n_i is NaN (a
+        silent drive's speed was held, and the recording's thrust made from it) and its bit is set
+        in ``feedback_lost``; one log line when it goes stale, one when it reports again. The
+        watchdog's ``thrusters`` source is any status frame: one silent drive does not stop all."""
+        limit = self.profile.watchdog.timeout
+        lost = (now - self._fb_rx) > limit
+        for i in np.flatnonzero(lost != self._fb_lost):
+            if lost[i]:
+                self._fb_lost_since[i] = now
+                self._fb_losses[i] += 1
+                self.counters["feedback_lost"] += 1
+            logged = self._fb_losses[i] <= LOG_FIRST
+            if lost[i] and logged:
+                more = " (further losses only counted)" if self._fb_losses[i] == LOG_FIRST else ""
+                self._say(
+                    f"thruster {i + 1}: no status frame for {now - self._fb_rx[i]:.2f} s at t = {now:.2f} s "
+                    f"(watchdog.timeout {limit:g} s): n_{i + 1} is NaN until it reports again{more}"
+                )
+            elif not lost[i] and logged:
+                self._say(f"thruster {i + 1}: status frames again at t = {now:.2f} s (stale for "
+                          f"{now - self._fb_lost_since[i]:.2f} s)")
+        self._fb_lost = lost
+        self._y[: len(lost)][lost] = np.nan
 
     def _ages(self, now: float) -> dict[str, float]:
         return {
@@ -750,6 +826,7 @@ class HardwareLink:
         y[s["frames_dropped"]] = sum(c[k] for k in FRAME_CLASSES)
         y[s["commands_limited"]] = c["command_nan"] + c["command_clamped"]
         y[s["port_losses"]] = c["serial_lost"] + c["can_lost"]
+        y[s["feedback_lost"]] = float(sum(1 << int(i) for i in np.flatnonzero(self._fb_lost)))
 
     def _trial_meta(self) -> dict[str, Any]:
         spec = self.spec

@@ -4,11 +4,19 @@ Both poll without waiting: a control loop calls them once per step. A port that 
 adapter, closed pseudo-terminal, vanished device node) is closed, counted and reopened every
 ``reconnect_interval`` seconds; everything in between is dropped, which is what a loop on a real
 vessel must do — the watchdog, not the transport, decides what the thrusters do meanwhile.
+
+Sending never waits long either: an adapter that stops taking frames (a stalled USB adapter, a
+frozen SLCAN peer) costs one ``TX_TIMEOUT`` at most per frame, and ``CanPort.tx_blocked`` tells the
+caller to drop the rest of its round. SLCAN frames are written here, not by python-can: its send
+can leave part of a frame on the line when pyserial's write timeout expires (the next frame is
+then glued to it) and ends with a ``tcdrain`` that waits without limit on a stalled USB adapter.
 """
 
 from __future__ import annotations
 
+import errno
 import logging
+import os
 import time
 from abc import ABC, abstractmethod
 from collections import Counter
@@ -17,11 +25,34 @@ from typing import Any
 
 import can
 import serial
+from can.interfaces.slcan import slcanBus
 
 log = logging.getLogger("seafmu.hardware")
 
 MAX_LINE = 256  # bytes: NMEA allows 82; the Nortek DVL sentences run to about 110
 MAX_FRAMES_PER_POLL = 2000  # a flooding bus must not hold the loop
+TX_TIMEOUT = 0.005  # s: the longest one CAN send may wait for an adapter that is not taking frames
+
+
+def os_reason(exc: BaseException) -> str:
+    """The OS's reason behind an open failure, in one line ("No such file or directory"): pyserial
+    and python-can wrap it in messages that repeat the port name; their own first line otherwise."""
+    seen: BaseException | None = exc
+    for _ in range(5):
+        if seen is None:
+            break
+        code = getattr(seen, "errno", None)
+        if code is None and len(seen.args) == 2 and isinstance(seen.args[0], int):
+            code = seen.args[0]  # termios.error: (errno, text)
+        if isinstance(code, int) and code > 0:
+            try:
+                why = os.strerror(code)
+            except ValueError:
+                break
+            return f"not a serial port ({why})" if code == errno.ENOTTY else why
+        seen = seen.__cause__ or seen.__context__
+    text = str(exc).splitlines()[0] if str(exc) else ""
+    return text or type(exc).__name__
 
 
 class _Port(ABC):
@@ -41,6 +72,7 @@ class _Port(ABC):
         self.counters = counters
         self.report = report or self._log_report
         self.is_open = False
+        self.error = ""  # why the last open failed (the OS's words)
         self._next_try = 0.0
         self._lost_logged = False
 
@@ -57,22 +89,26 @@ class _Port(ABC):
     def _close(self) -> None:
         """Close the device."""
 
-    def open(self) -> bool:
-        """Try to open now; False (logged once per outage) if it cannot."""
+    def open(self, retry: bool = True) -> bool:
+        """Try to open now; False if it cannot, with the reason in ``error``. ``retry``: the loop
+        will reopen it every ``reconnect_interval`` (logged once per outage); without, the caller
+        reports the failure itself (a start that fails ends the run: no "retrying" to promise)."""
         try:
             self._open()
         except Exception as exc:  # pyserial, python-can and the OS raise many kinds: all mean "not now"
+            self.error = os_reason(exc)
             self._next_try = time.monotonic() + self.reconnect_interval
-            if not self._lost_logged:
+            if retry and not self._lost_logged:
                 log.warning(
                     "%s %s: cannot open (%s); retrying every %g s",
                     self.what,
                     self.name,
-                    str(exc).splitlines()[0] if str(exc) else type(exc).__name__,
+                    self.error,
                     self.reconnect_interval,
                 )
                 self._lost_logged = True
             return False
+        self.error = ""
         if self._lost_logged:
             log.warning("%s %s: open again", self.what, self.name)
         self._lost_logged = False
@@ -233,17 +269,40 @@ class CanPort(_Port):
         self.bitrate = bitrate
         self.options = dict(options or {})
         self.bus: can.BusABC | None = None
+        self.tx_blocked = False  # the adapter did not take the last frame: drop the rest of the round
+        self._line_dirty = False  # SLCAN: the line may end inside a frame (a CR goes first)
 
     def _open(self) -> None:
         kw = dict(self.options)
         if self.bitrate is not None:
             kw["bitrate"] = self.bitrate
         self.bus = can.Bus(interface=self.interface, channel=self.channel, **kw)
+        self.tx_blocked = False
+        self._line_dirty = False
 
     def _close(self) -> None:
-        if self.bus is not None:
-            self.bus.shutdown()
-        self.bus = None
+        bus, self.bus = self.bus, None
+        if bus is None:
+            return
+        port = self._slcan_port(bus)
+        try:
+            if port is not None:
+                # python-can's shutdown writes "C" with the port's (unlimited) write timeout, then
+                # tcdrain()s: on an adapter that stopped taking data both would wait for ever
+                port.write_timeout = TX_TIMEOUT
+                if self.tx_blocked:
+                    port.reset_output_buffer()
+                    port.close()
+        finally:
+            bus.shutdown()
+
+    @staticmethod
+    def _slcan_port(bus: can.BusABC | None) -> serial.Serial | None:
+        """The tty under an SLCAN bus, when it is a local one whose fd this module can write."""
+        if not isinstance(bus, slcanBus):
+            return None
+        port = getattr(bus, "serialPortOrig", None)
+        return port if isinstance(port, serial.Serial) and getattr(port, "fd", None) is not None else None
 
     def _failed(self, exc: BaseException, what: str) -> bool:
         """Count a bus error; True if the port itself is gone (then it is closed for reconnection)."""
@@ -317,11 +376,52 @@ class CanPort(_Port):
         return out
 
     def send(self, msg: can.Message) -> bool:
+        """Send one frame, waiting ``TX_TIMEOUT`` at most; False if it did not go out, and then
+        ``tx_blocked`` if the adapter refused it (time-out, bus error), not because the port is closed."""
         if not self.ensure_open() or self.bus is None:
             return False
+        port = self._slcan_port(self.bus)
+        if port is not None and not (msg.is_fd or msg.is_remote_frame or msg.is_error_frame):
+            return self._send_slcan(port, msg)
         try:
-            self.bus.send(msg, timeout=0.01)
+            self.bus.send(msg, timeout=TX_TIMEOUT)
         except Exception as exc:  # can.CanOperationError on a full queue or a dead adapter
-            self._failed(exc, "send")
+            self.tx_blocked = not self._failed(exc, "send")
             return False
+        self.tx_blocked = False
         return True
+
+    def _send_slcan(self, port: serial.Serial, msg: can.Message) -> bool:
+        """One SLCAN line, written without waiting: the adapter takes all of it, or the queued
+        frames (stale by now) are discarded and a CR ends whatever part of a frame went out, so
+        the next frame starts a clean line and the drives get the current command, not a backlog.
+        (A part that lacked only its CR is a whole frame: it arrives late, and its alive counter
+        is then behind the next fresh frame's by the frames dropped meanwhile.)"""
+        head = f"T{msg.arbitration_id:08X}" if msg.is_extended_id else f"t{msg.arbitration_id:03X}"
+        line = f"{head}{msg.dlc:d}{bytes(msg.data).hex().upper()}\r".encode("ascii")
+        lead = b"\r" if self._line_dirty else b""
+        data = lead + line
+        try:
+            n = os.write(port.fd, data)
+        except BlockingIOError:
+            n = 0
+        except OSError as exc:
+            if exc.errno in (errno.EAGAIN, errno.EINTR):
+                n = 0
+            else:
+                self.lost(exc)
+                return False
+        if n == len(data):
+            self._line_dirty = False
+            self.tx_blocked = False
+            return True
+        try:
+            port.reset_output_buffer()  # what still waits behind a full buffer is stale: discard it
+        except (serial.SerialException, OSError, TypeError) as exc:
+            self.lost(exc)
+            return False
+        self._line_dirty = True  # the discarded queue may end inside a frame
+        self.tx_blocked = True
+        self.report("tx_timeout", f"dropped (tx_timeout): can {self.name} adapter not taking frames "
+                    f"({n} of {len(data)} bytes written)")
+        return False
