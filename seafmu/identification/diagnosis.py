@@ -834,6 +834,9 @@ def _explained_away_member(c: Candidate, idx: tuple[int, ...],
     weak = [k for k, ok in zip(idx, c.significant_each, strict=True) if not ok]
     if len(weak) != 1 or weak[0] not in old:
         return None
+    names = dict(zip(idx, c.effects, strict=True))
+    if not all(_may_explain_away(names[k], names[weak[0]]) for k in idx if k not in old):
+        return None  # a general newcomer does not stand for a specific member (_may_explain_away)
     return tuple(k for k in idx if k != weak[0])
 
 
@@ -1063,11 +1066,12 @@ def choose(cands: list[Candidate], rule: Rule | None = None) -> Candidate | None
     """Best accepted candidate: lowest held-out NRMSE; within 1 % of it, the lowest AIC.
 
     A single effect that a combination with another accepted effect explains away (its parameters
-    insignificant there, the other's significant: ``_explained_away``) is not a candidate. Two
-    kinds of candidate must first earn their place by the rule's margins (held-out ratio and gain,
-    dAIC) over every simpler accepted explanation: a combination over each accepted candidate with
-    fewer effects (the smallest combination that explains the data), and a general family (a power
-    law, ``general``) over each accepted specific effect whose shape it contains.
+    insignificant there, the other's significant: ``_explained_away``) is not a candidate; a
+    general family never explains a specific effect away. Two kinds of candidate must first earn
+    their place by the rule's margins (held-out ratio and gain, dAIC) over every simpler accepted
+    explanation: a combination over each accepted candidate with fewer effects (the smallest
+    combination that explains the data), and a general family (a power law, ``general``) over each
+    accepted specific effect (it contains several of their shapes).
     """
     rule = rule or Rule()
     ok = [c for c in cands if c.accepted and c.fit is not None]
@@ -1085,7 +1089,8 @@ def _explained_away(c: Candidate, cands: list[Candidate], ok: list[Candidate]) -
     """True when a fit of ``c``'s effect together with another accepted one leaves ``c``'s parameters
     insignificant while the other's stay significant, and the other alone has the lower AIC: in
     the model that has both, the other explains what ``c`` did (e.g. a steady force standing in for
-    a wrong sway-yaw coupling, found better on the held-out part by chance)."""
+    a wrong sway-yaw coupling, found better on the held-out part by chance). A general family does
+    not explain a specific effect away (``_may_explain_away``)."""
     if c.size != 1:
         return False
     mine = c.members()[0]
@@ -1093,7 +1098,7 @@ def _explained_away(c: Candidate, cands: list[Candidate], ok: list[Candidate]) -
     # accepted singles the information criterion prefers to c (lag and delay, fitted together, split
     # their significance by chance: the one with the better AIC alone is not explained away)
     accepted = {m for o in ok if o.size == 1 and o.fit is not None and o.fit.aic < c.fit.aic
-                for m in o.members()}
+                and _may_explain_away(o.effects[0], c.effect) for m in o.members()}
     for pair in cands:
         if pair.fit is None or pair.size < 2 or len(pair.significant_each) != pair.size:
             continue
@@ -1106,8 +1111,25 @@ def _explained_away(c: Candidate, cands: list[Candidate], ok: list[Candidate]) -
     return False
 
 
+def _is_general(effect: str) -> bool:
+    """A family containing other effects' shapes (a power law: the effect object's ``general``)."""
+    return bool(getattr(effect_objects.get(effect), "general", False))
+
+
 def _general(c: Candidate) -> bool:
-    return any(getattr(effect_objects.get(e), "general", False) for e in c.effects)
+    return any(_is_general(e) for e in c.effects)
+
+
+def _may_explain_away(other: str, effect: str) -> bool:
+    """Whether effect ``other``, significant where ``effect`` is not in a fit of both, may explain
+    ``effect`` away. Not a general family a specific effect: a power law contains specific shapes
+    (d_Q v|v|^(p-1) is linear damping at p = 1; k n|n|^(p-1) thrust_quadratic's law at p = 2), so
+    beside such an effect its terms are nearly collinear, and which of the two keeps its
+    significance is chance, not evidence. A hidden linear damping of 9 in a drag table was named
+    ``damping_power`` (p = 1.82) that way, its held-out gain over linear_damping far below the
+    margins. The general family has to beat each specific effect by the rule's margins instead
+    (``_beaten_by_simpler``), as the documented rule says."""
+    return not (_is_general(other) and not _is_general(effect))
 
 
 def _beaten_by_simpler(c: Candidate, ok: list[Candidate], rule: Rule) -> bool:
