@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import itertools
 from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -247,6 +248,15 @@ class CatalogueEffect(ABC):
     def maneuver_evidence(self, params: dict[str, float]) -> str:
         raise EffectNotSupported(f"effect '{self.name}' has no maneuver-level extension")
 
+    def maneuver_forms(self, vessel: Any) -> list[CatalogueEffect]:
+        """The physical forms of the extension the fit tries, keeping the one that fits the log best
+        (same parameters; ``effects.current``: the inertia on the current's rate); itself alone."""
+        return [self]
+
+    def maneuver_form(self) -> str | None:
+        """Which form this object simulates, in words (None: the only one, or the vessel file's)."""
+        return None
+
 
 class Combined(CatalogueEffect):
     """Several maneuver effects (or located variants of one) fitted together: their parameters side
@@ -295,6 +305,17 @@ class Combined(CatalogueEffect):
     def maneuver_evidence(self, params: dict[str, float]) -> str:
         return "; ".join(p.maneuver_evidence({q: params[q] for q in p.maneuver_params(self._d)
                                               if q in params}) for p in self.parts)
+
+    def maneuver_forms(self, vessel: Any) -> list[CatalogueEffect]:
+        """Every choice of its parts' forms (``CatalogueEffect.maneuver_forms``)."""
+        choices = list(itertools.product(*(p.maneuver_forms(vessel) for p in self.parts)))
+        if len(choices) == 1:
+            return [self]
+        return [Combined(c, self._d) for c in choices]
+
+    def maneuver_form(self) -> str | None:
+        forms = [f for p in self.parts if (f := p.maneuver_form()) is not None]
+        return "; ".join(forms) if forms else None
 
 
 def vessel_dof(trial: Trial) -> int | None:

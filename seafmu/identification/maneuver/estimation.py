@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 import copy
+import dataclasses
 import hashlib
 from contextlib import AbstractContextManager
 from dataclasses import dataclass
@@ -16,6 +17,7 @@ from threadpoolctl import ThreadpoolController
 from seafmu.components.vessel_spec import NU_NAMES, VesselSpec
 from seafmu.identification import arrowlm, fitting
 from seafmu.identification.effects import CatalogueEffect
+from seafmu.identification.effects.base import Combined
 from seafmu.identification.maneuver.preprocessing import _Prepared, noise_ratios
 from seafmu.identification.maneuver.simulation import _sim_residual, _SimSetup, _Simulator
 from seafmu.identification.maneuver.statistics import _autocorr_inflation
@@ -526,6 +528,24 @@ JAC_MAX_H = 0.2
 COARSE_MISMATCH = 0.05
 
 
+# A segment whose coarse-grid Jacobian differs from the fine grid's by more than this (relative, in the
+# Frobenius norm of its model block or of its state block) at a fit's solution is misleading there. Measured:
+# 0.0005-0.009 on the review logs; 0.14 in one AMV segment where a fitted baseline was nearly unstable,
+# whose coarse gradient then had the wrong sign and stopped the fit (and every extension's after it) on
+# `xtol` short of the fine grid's minimum.
+JAC_CHECK = 0.03
+
+
+def _coarse_misleading(Jc: arrowlm.ArrowJacobian, Jf: arrowlm.ArrowJacobian) -> np.ndarray:
+    """Per segment: does its coarse Jacobian differ from the fine one by more than ``JAC_CHECK``?"""
+    out = np.zeros(Jf.Jp.shape[0], dtype=bool)
+    for a, b in ((Jc.Jp, Jf.Jp), (Jc.Jx, Jf.Jx)):
+        diff = np.sqrt(np.sum((a - b) ** 2, axis=(1, 2)))
+        ref = np.sqrt(np.sum(b**2, axis=(1, 2)))
+        out |= diff > JAC_CHECK * np.maximum(ref, 1e-300)
+    return out
+
+
 def _coarse_sim(setup: _SimSetup) -> tuple[_Simulator, int] | None:
     """The setup's simulator on every c-th sample (the first c of ``JAC_COARSEN`` that fits), same
     segments and starts; RK4 midpoints at the fine samples halfway (c even). None when no c fits."""
@@ -587,6 +607,24 @@ _STATES_MAX = 16
 # evaluations: an effect that is there converges in far fewer (measured: 2-11), one that is not creeps
 # on at the cap without ever explaining the log (its held-out error is what the diagnosis judges).
 WARM_NFEV = 20
+# ... unless it is still speeding up there (``_accelerating``): then it goes on from where it stopped, up
+# to the caller's budget. Measured: a current of 0.1 m/s in an AMV log, warm started from a baseline whose
+# damping had absorbed it, crept for 12 evaluations (the states fitted without the current make the
+# first steps overshoot) and then cut the cost by 3, 4, 7, 11, 20, 34, 55, 74 per step when the cap
+# stopped it (v_c 0.025, 0.048 for 0.070, 0.072); on, it converged after 32 (v_c 0.068, 0.071). Fits that
+# creep at the cap (effects that are not there, or one of three alone) slow down there instead.
+WARM_WINDOW = 3  # accepted steps compared with the ones before them
+
+
+def _accelerating(costs: list[float]) -> bool:
+    """Do the costs of the accepted steps fall faster over the last ``WARM_WINDOW`` steps than over
+    the ones before, by at least 1 % of the last?"""
+    c = np.asarray(costs, dtype=float)
+    n = WARM_WINDOW
+    if c.size < 2 * n + 1:
+        return False
+    recent, before = c[-n - 1] - c[-1], c[-2 * n - 1] - c[-n - 1]
+    return bool(recent > before and recent > 0.01 * c[-1])
 
 
 def _log_key(setup: _SimSetup) -> str:
@@ -602,6 +640,55 @@ def _remember_states(key: str, names: list[str], values: np.ndarray, x0: np.ndar
     ``_STATES_MAX`` dropped)."""
     del _STATES[: max(0, len(_STATES) - _STATES_MAX + 1)]
     _STATES.append((key, tuple(names), np.array(values, dtype=float), x0.copy(), dict(hold or {}), cost))
+
+
+# The form each effect with several (``maneuver_forms``: a current's inertia) was kept in by the first
+# fit of a log that chose one, by (log, the vessel file's current_inertia, effect name): the log's later
+# fits with it (pairs, their screening) use that form instead of trying each again (it doubled the
+# cost of every combination with a current).
+_FORMS: dict[tuple[str, str, str], CatalogueEffect] = {}
+_FORMS_MAX = 64
+# The other forms' brief fits (function evaluations), from where the first form's fit ended: the
+# right form overtakes the other within a few (measured: 13.9 against 19.5 in 7 on a Minerva 2 log
+# made with Fossen's form; 327.8 against 353.4 in 5 on an AMV log with a lost thruster whose current
+# fit alone had kept the wrong form; the wrong one stays above, 21.1 against 14.0).
+FORM_NFEV = 5
+# ... and it is fitted on (with the first) only where it fits clearly better there: by more than this
+# fraction of the first's cost. Where the form matters (a current and turns) it is 29-33 % (either way);
+# without a current both forms are one model but for the small current a fit finds anyway, 0.4 % apart.
+FORM_GAIN = 0.05
+
+
+def _remember_forms(key: str, vessel: VesselSpec, eff: CatalogueEffect) -> None:
+    """Remember the form of each part of ``eff`` that has one (``_FORMS``)."""
+    for p in getattr(eff, "parts", (eff,)):
+        if p.maneuver_form() is not None:
+            _FORMS.pop((key, vessel.current_inertia, p.name), None)
+            _FORMS[(key, vessel.current_inertia, p.name)] = p
+    while len(_FORMS) > _FORMS_MAX:
+        del _FORMS[next(iter(_FORMS))]
+
+
+def formed(eff: CatalogueEffect, key: str, vessel: VesselSpec) -> CatalogueEffect:
+    """``eff`` with each part that has several forms and none fixed in the form a fit of this log
+    (``key``, ``_log_key``) kept (``_FORMS``); itself where none was kept."""
+    parts = getattr(eff, "parts", None)
+    if parts is None:
+        if eff.maneuver_form() is None and len(eff.maneuver_forms(vessel)) > 1:
+            return _FORMS.get((key, vessel.current_inertia, eff.name), eff)
+        return eff
+    new = [formed(p, key, vessel) for p in parts]
+    return eff if all(a is b for a, b in zip(new, parts, strict=True)) else Combined(new, vessel.dof)
+
+
+def _latest(key: str, values: dict[str, float]) -> None:
+    """Make the remembered fit of this log that ``values`` gives every parameter of the latest one
+    (``_recalled`` falls back to the latest)."""
+    for k in range(len(_STATES) - 1, -1, -1):
+        e = _STATES[k]
+        if e[0] == key and all(values.get(n) == v for n, v in zip(e[1], e[2].tolist(), strict=True)):
+            _STATES.append(_STATES.pop(k))
+            return
 
 
 def _start_cost(key: str, start: dict[str, float] | None) -> float | None:
@@ -644,6 +731,69 @@ def _output_error_one(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | No
                       plant: dict[str, np.ndarray], added_mass: bool, base: str, max_nfev: int,
                       warnings: list[str], eff: CatalogueEffect | None,
                       start: dict[str, float] | None) -> tuple:
+    """One output-error fit with the effect object ``eff`` (``_output_error_form``). An effect with
+    several physical forms (``maneuver_forms``: a current's inertia term) is fitted in the form an
+    earlier fit of this log kept (``formed``), else in the vessel file's form, then (where that
+    removes more than ``FORM_GAIN`` of the cost of the fitted model it starts from, or that is not
+    known) in each other form briefly (``FORM_NFEV``) from where that fit ended; a form that does
+    clearly better there (``FORM_GAIN``) is fitted on to convergence, and so is the first (were it
+    stopped by its budget, the other would win by its extra steps alone). The form with the lowest
+    fitting cost is kept (the same parameters: also the lowest AIC) and remembered for the log.
+    ``info["effect_form"]`` says the form fitted, ``info["forms"]`` each tried form's cost."""
+    key = _log_key(setup) if setup is not None else ""
+    forms: list[CatalogueEffect | None] = [None]
+    if eff is not None:  # the form a fit of this log kept first, then the others
+        kept = formed(eff, key, vessel).maneuver_form()
+        forms = sorted(eff.maneuver_forms(vessel), key=lambda f: f.maneuver_form() != kept)
+
+    def fit(form: CatalogueEffect | None, at: dict[str, float] | None, nfev: int, w: list[str],
+            brief: bool = False) -> tuple:
+        out = _output_error_form(vessel, prep, setup, ls, plant, added_mass, base, nfev, w, form, at, brief)
+        if form is not None and form.maneuver_form() is not None:
+            out[9]["effect_form"] = form.maneuver_form()
+        return out
+
+    def end(out: tuple) -> dict[str, float]:  # where a fit ended (its segment states come with it)
+        return {**(start or {}), **dict(zip(out[3], out[4].tolist(), strict=True))}
+
+    def stopped(out: tuple) -> bool:
+        return out[9]["oe_status"] == arrowlm.MESSAGES[5]
+
+    w0: list[str] = []
+    first = fit(forms[0], start, max_nfev, w0)
+    base_cost = _start_cost(key, start)  # the fitted model it starts from (the baseline's), if known
+    if (len(forms) == 1 or max_nfev <= WARM_NFEV
+            or (base_cost is not None and first[9]["oe_cost"] > (1.0 - FORM_GAIN) * base_cost)):
+        # one form, a short fit (a diagnosis's cheap check of a combination, a few evaluations), or
+        # an effect that explains too little for its form to matter by FORM_GAIN
+        warnings += w0
+        return first
+    fits = [[first, w0, forms[0]]]
+    costs = [first[9]["oe_cost"]]  # each form's, as far as it was fitted
+    for form in forms[1:]:
+        w: list[str] = []
+        out = fit(form, end(first), FORM_NFEV, w, brief=True)
+        if out[9]["oe_cost"] < (1.0 - FORM_GAIN) * first[9]["oe_cost"]:
+            w = []
+            out = fit(form, end(out), max_nfev, w)  # on to convergence (warm), with its covariance
+            if stopped(fits[0][0]):
+                fits[0][1] = []
+                fits[0][0] = fit(forms[0], end(fits[0][0]), max_nfev, fits[0][1])
+                costs[0] = fits[0][0][9]["oe_cost"]
+            fits.append([out, w, form])
+        costs.append(out[9]["oe_cost"])
+    best, w_best, form = min(fits, key=lambda f: f[0][9]["oe_cost"])  # the first form on a tie
+    warnings += w_best
+    _remember_forms(key, vessel, form)
+    _latest(key, end(best))  # the kept fit is the log's latest (a later start falls back to its states)
+    best[9]["forms"] = [{"form": f.maneuver_form(), "cost": c} for f, c in zip(forms, costs, strict=True)]
+    return best
+
+
+def _output_error_form(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | None, ls: _LSResult,
+                       plant: dict[str, np.ndarray], added_mass: bool, base: str, max_nfev: int,
+                       warnings: list[str], eff: CatalogueEffect | None,
+                       start: dict[str, float] | None, brief: bool = False) -> tuple:
     """One output-error fit, with the effect object ``eff``'s parameters (or none). Damping is
     dissipative: each fitted diagonal entry, linear and quadratic, is bounded below by 0 inside the
     iteration (``arrowlm``'s projected step: an active set, so one fit where holding entries fitted
@@ -651,12 +801,13 @@ def _output_error_one(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | No
     and a short closed-loop log let the linear entries wander negative and name the wrong thruster). An
     entry that ends at 0 is reported held there, said in a warning, and the covariance is the free
     entries'. Started from a fitted model (the diagnosis's extensions, from the baseline), the
-    entries that model held (``_recall_holds``) start at 0."""
+    entries that model held (``_recall_holds``) start at 0. ``brief``: only the cost and the values
+    are wanted (no covariance: its CIs are NaN)."""
     inherit = _recall_holds(_log_key(setup), start) if setup is not None else {}
     if inherit:
         start = {**inherit, **(start or {})}
     out = _output_error_held(vessel, prep, setup, ls, plant, added_mass, base, max_nfev, warnings, eff,
-                             start, {})
+                             start, {}, brief)
     at = out[9]["held_at_bound"]
     if at:
         warnings.append(f"damping {', '.join(at)} held at 0 (dissipative): the fit would take "
@@ -667,7 +818,7 @@ def _output_error_one(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | No
 def _output_error_held(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | None, ls: _LSResult,
                        plant: dict[str, np.ndarray], added_mass: bool, base: str, max_nfev: int,
                        warnings: list[str], eff: CatalogueEffect | None,
-                       start: dict[str, float] | None, hold: dict[str, float]) -> tuple:
+                       start: dict[str, float] | None, hold: dict[str, float], brief: bool = False) -> tuple:
     """One output-error fit with the damping entries in ``hold`` (name -> value) kept fixed and the
     fitted damping entries bounded below by 0: those that end there are left out of the names,
     values and covariance, as held (``info["held_at_bound"]``)."""
@@ -799,6 +950,7 @@ def _output_error_held(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | N
         return out[0], out[1], bad
 
     last: list[np.ndarray] = []  # fun's last point and residuals (where the LM asks for the Jacobian)
+    accepted: list[float] = []  # the cost at each point the LM moved to (it asks for the Jacobian there)
     fine_jac: list = []  # the last fine-grid Jacobian and its point (the covariance's, where the fit ended)
     # each segment's grid: the coarsest not found misleading for it in this fit (``sensitivities``);
     # the fine grid last
@@ -817,6 +969,8 @@ def _output_error_held(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | N
         are independent, so segment s's rows give its own state's column). Kept by blocks
         (arrowlm): a dense matrix would have one column per segment and state, rows x columns
         growing as the square of the log length. On the coarse grid unless ``fine``."""
+        if not fine and last and np.array_equal(last[0], z):
+            accepted.append(0.5 * float(np.sum(last[1] ** 2)))
         step = 1e-6 * np.maximum(1.0, np.abs(z))
         Z = np.repeat(z[None], 1 + npar + nx, axis=0)
         Z[1 + np.arange(npar), np.arange(npar)] += step[:npar]
@@ -869,11 +1023,28 @@ def _output_error_held(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | N
     p0 = z0[:npar] * scales
     # MINPACK's Levenberg-Marquardt (as least_squares(method="lm", x_scale=1.0)) on the block
     # structure: time and memory linear in the log length (arrowlm)
+    full_nfev = max_nfev
     if best == 2:  # from a fitted model and its states: near the optimum, or an effect that does not fit
         max_nfev = min(max_nfev, WARM_NFEV)
     lower = np.full(npar, -np.inf)
     lower[: nL + nQ] = 0.0  # damping is dissipative (the scales are positive)
     sol = arrowlm.levenberg_marquardt(fun, jac, z0, max_nfev=max_nfev, final_jac=not coarse, lower=lower)
+    if max_nfev < full_nfev and not sol.success and _accelerating([*accepted, float(sol.cost)]):
+        # stopped by the warm cap while still speeding up (an effect that is there, found late): on
+        # from where it stopped, up to the caller's budget
+        more = arrowlm.levenberg_marquardt(fun, jac, sol.x, max_nfev=full_nfev - sol.nfev,
+                                           final_jac=not coarse, lower=lower)
+        sol = dataclasses.replace(more, nfev=sol.nfev + more.nfev, njev=sol.njev + more.njev)
+    if coarse and sol.success and not brief:
+        # converged on the coarse sensitivities: checked at the solution against the fine grid's (the
+        # covariance's, computed anyway); segments where they differ go to the fine grid and the fit
+        # goes on from there
+        wrong = _coarse_misleading(jac(sol.x), jac(sol.x, fine=True))
+        if wrong.any():
+            level[wrong] = len(grids) - 1
+            more = arrowlm.levenberg_marquardt(fun, jac, sol.x, max_nfev=full_nfev, final_jac=False,
+                                               lower=lower)
+            sol = dataclasses.replace(more, nfev=sol.nfev + more.nfev, njev=sol.njev + more.njev)
     p_all = sol.x[:npar] * scales
     if not sol.success:
         warnings.append(f"output-error optimiser stopped: {sol.message}")
@@ -889,12 +1060,15 @@ def _output_error_held(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | N
     infl = _autocorr_inflation(r.reshape(-1, d))
     # s^2 (J^T J)^-1 over the free model and initial-state parameters (column-scaled pseudo-inverse),
     # model block, from the Jacobian on the fine grid
-    J = jac(sol.x, fine=True) if coarse else sol.jac
-    assert J is not None
-    if at:
-        J = arrowlm.ArrowJacobian(np.ascontiguousarray(J.Jp[:, :, keep]), J.Jx)
-    n_cols = keep.size + S * nx
-    cov = float(r @ r) / max(r.size - n_cols, 1) * J.scaled(scales[keep]).normal().inverse_pp() * infl
+    if brief:
+        cov = np.full((keep.size, keep.size), np.nan)
+    else:
+        J = jac(sol.x, fine=True) if coarse else sol.jac
+        assert J is not None
+        if at:
+            J = arrowlm.ArrowJacobian(np.ascontiguousarray(J.Jp[:, :, keep]), J.Jx)
+        n_cols = keep.size + S * nx
+        cov = float(r @ r) / max(r.size - n_cols, 1) * J.scaled(scales[keep]).normal().inverse_pp() * infl
     ci = fitting.confidence_intervals(names, p, cov, r.size)
     corr = fitting.correlation_matrix(cov)
     M, DL, DQ = (a[0] for a in mats(p_all[None]))

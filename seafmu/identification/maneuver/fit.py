@@ -5,6 +5,7 @@ smoothing), optionally output error, and reports a ``FitResult``.
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -15,7 +16,13 @@ from seafmu.components.vessel_spec import NU_NAMES, TAU_NAMES, VesselSpec
 from seafmu.identification import fitting
 from seafmu.identification.effects import CatalogueEffect
 from seafmu.identification.fitting import FitResult
-from seafmu.identification.maneuver.estimation import _LSResult, _output_error, _output_error_one, _run_ls
+from seafmu.identification.maneuver.estimation import (
+    JAC_COARSEN,
+    _LSResult,
+    _output_error,
+    _output_error_one,
+    _run_ls,
+)
 from seafmu.identification.maneuver.io import (
     SAMPLES_PER_REGRESSOR,
     ManeuverData,
@@ -29,7 +36,13 @@ from seafmu.identification.maneuver.preprocessing import (
     _uniform,
     noise_ratio,
 )
-from seafmu.identification.maneuver.simulation import _nrmse_per_dof, _sim_setup, _SimSetup, _trace
+from seafmu.identification.maneuver.simulation import (
+    _nrmse_per_dof,
+    _sim_setup,
+    _SimSetup,
+    _trace,
+    shooting_nodes,
+)
 from seafmu.identification.maneuver.statistics import (
     NOISE_REPLICATES,
     _autocorr_inflation,
@@ -139,6 +152,10 @@ def prepare_maneuver(data: ManeuverData, vessel: VesselSpec, validation_fraction
     tau_rank = int(np.sum(np.linalg.eigvalsh(tau_cov) > 1e-8))
     if tau_rank < d:
         warnings.append(f"the logged forces excite only {tau_rank} of {d} independent directions")
+    nodes = shooting_nodes(vessel, prep, 0, i_split, segment, sim_dt, plant["M"], plant["D_L"], plant["D_Q"],
+                           align=math.lcm(*JAC_COARSEN))
+    if nodes.size:  # segments along which the model amplifies a start error get more starts
+        fit_setup = _sim_setup(vessel, prep, 0, i_split, segment, sim_dt, nodes=nodes) or fit_setup
     val_setup = _sim_setup(vessel, prep, i_split, n, segment, sim_dt, scale=fit_setup.scale)
     extras: dict[str, Any] = {
         "preprocessing": prep.note,
@@ -149,6 +166,7 @@ def prepare_maneuver(data: ManeuverData, vessel: VesselSpec, validation_fraction
         "coriolis": coriolis,
         "ls_form": ls.note,
         "segment_s": segment,
+        "shooting_nodes_s": [float(fit_setup.t[k]) for k in nodes] if fit_setup.t is not None else [],
         "sim_dt_s": fit_setup.sim.h,
         "ls_matrices": {"M": ls.M.tolist(), "D_L": ls.D_L.tolist(), "D_Q": ls.D_Q.tolist()},
         "vessel_matrices": {k: v.tolist() for k, v in plant.items()},
@@ -404,9 +422,12 @@ def _estimate(method: str, vessel: VesselSpec, prep: _Prepared, fit_setup: _SimS
         (M, D_L, D_Q, names, values, cov, ci, corr, n_res, oe_info) = oe(
             vessel, prep, fit_setup, ls, plant, oe_added_mass, oe_base, max_nfev, warnings, effect, oe_start)
         extras.update(oe_info)
+        form = oe_info.get("effect_form")  # the form of an effect with several, said in the label
+        if form and len(oe_info.get("forms", ())) > 1:
+            form += ", which fits the log better than the other form"
         method_label = (f"maneuver output error (diagonal D_L, D_Q{', added mass' if oe_added_mass else ''}; "
                         f"start: {ls.note}; other entries from the "
-                        f"{'vessel file' if oe_base == 'vessel' else 'LS fit'})")
+                        f"{'vessel file' if oe_base == 'vessel' else 'LS fit'}{f'; {form}' if form else ''})")
     return M, D_L, D_Q, names, values, ci, corr, n_res, method_label
 
 
@@ -484,7 +505,7 @@ def screen_extensions(problem: ManeuverProblem, start: dict[str, float], members
     shows here even where each member's own fit was stuck. None when the baseline itself does not
     simulate."""
     from seafmu.identification.effects.base import Combined  # the effects package is light
-    from seafmu.identification.maneuver.estimation import _log_key, _recall_states
+    from seafmu.identification.maneuver.estimation import _log_key, _recall_states, formed
     from seafmu.identification.maneuver.simulation import _sim_residual
 
     vessel, plant, prep = problem.vessel, problem.plant, problem.prep
@@ -495,6 +516,8 @@ def screen_extensions(problem: ManeuverProblem, start: dict[str, float], members
     setup = _coarse_setup(problem.fit_setup)
     val = _coarse_setup(problem.val_setup) if problem.val_setup is not None else None
     d = vessel.dof
+    # a member with several forms (a current's inertia) in the form the log's fits kept
+    members = [formed(m, _log_key(problem.fit_setup), vessel) for m in members]
     M0, DL0, DQ0, damp = _reference_model(plant, start, d)
     allm = Combined(members, d)
     enames = allm.maneuver_params(d)

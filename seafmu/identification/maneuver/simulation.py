@@ -19,10 +19,12 @@ from seafmu.components.vessel_spec import VesselSpec
 from seafmu.cores import core_count
 from seafmu.identification import fitting
 from seafmu.identification.effects.coupling import sway_yaw_entries
+from seafmu.identification.effects.current import INERTIA_FORMS
 from seafmu.identification.maneuver.preprocessing import _Prepared
 from seafmu.identification.maneuver.terms import _Restoring, _sym, coriolis_tensor
 
 _BASIS: dict[int, np.ndarray] = {}
+_CROSS: dict[int, np.ndarray] = {}
 
 
 def _coriolis_basis(d: int) -> np.ndarray:
@@ -35,6 +37,25 @@ def _coriolis_basis(d: int) -> np.ndarray:
     return _BASIS[d]
 
 
+def _cross_basis(d: int) -> np.ndarray:
+    """E (k, d*d) with (omega x nu_c)_i = sum_j E[i, j] (nu (x) nu - nu_r (x) nu_r)_j (k = 2 of 3 DOF,
+    3 of 6): omega_a c_b = nu_a nu_b - nu_r,a nu_r,b for a rotation a and a translation b, as
+    nu_r,a = nu_a. So the current's inertia term is a weight on the two quadratic blocks the
+    compiled kernel already has (``_Simulator.run``), not a new term of the kernel."""
+    if d not in _CROSS:
+        rot, k = ((2,), 2) if d == 3 else ((3, 4, 5), 3)
+        axes = (2,) if d == 3 else (0, 1, 2)  # the rotation axes of rot
+        E = np.zeros((k, d * d))
+        for i in range(k):
+            for a, ra in zip(axes, rot, strict=True):
+                for b in range(k):
+                    eps = (i - a) * (a - b) * (b - i) / 2  # Levi-Civita symbol of (i, a, b)
+                    E[i, ra * d + b] += eps
+        E.flags.writeable = False
+        _CROSS[d] = E
+    return _CROSS[d]
+
+
 class _Simulator:
     """RK4 of the model for many (M, D_L, D_Q) and many segments at once.
 
@@ -43,12 +64,13 @@ class _Simulator:
     from the measured (smoothed) state, so a fit is not dominated by drift from one start.
     Same equations as ``VesselModel.derivative`` without current (checked by a test).
 
-    Diagnosis extensions (``run(..., F0=, vc=, thrust_gain=, sway_yaw=, added_mass=)``): sway-yaw
-    damping coupling added to D_L and D_Q, added mass on M's diagonal, a thruster's gain, a
+    Diagnosis extensions (``run(..., F0=, vc=, vc_inertia=, thrust_gain=, sway_yaw=, added_mass=)``):
+    sway-yaw damping coupling added to D_L and D_Q, added mass on M's diagonal, a thruster's gain, a
     constant generalised force F0 added to tau, and a constant NED current vc = (north, east):
     damping and the added-mass Coriolis terms then act on nu_r = nu - R^T [vc; 0] as in the plant
     (C_RB(nu) nu + C_A(nu_r) nu_r), with R from the simulated roll/pitch and the *measured* heading
-    (``psi``, set by ``_sim_setup``).
+    (``psi``, set by ``_sim_setup``), and the inertia acts on the current's rate as the vessel file's
+    ``current_inertia`` says or as ``vc_inertia`` gives (``effects.current.INERTIA_FORMS``).
 
     The RK4 loop is compiled (``components/kernels/maneuver.py``: one loop over parameter sets,
     segments and steps instead of L steps of NumPy calls on (K, S, ...) arrays).
@@ -70,6 +92,7 @@ class _Simulator:
         self.x0 = x_meas[starts]  # (S, nx)
         self.idx = idx
         self.M_RB = _sym(np.asarray(vessel.M_RB, dtype=float))
+        self.current_inertia = INERTIA_FORMS[vessel.current_inertia]  # the file's, unless run() is told
         self.psi: np.ndarray | None = None  # (S, L+1) measured heading (unwrapped), for a current
         self.psi_mid: np.ndarray | None = None  # (S, L)
         # per-thruster thrust on the hull (S, L+1, m) and at the midpoints (S, L), with B (d, m):
@@ -88,14 +111,16 @@ class _Simulator:
     def run(self, M: np.ndarray, DL: np.ndarray, DQ: np.ndarray, x0: np.ndarray | None = None,
             F0: np.ndarray | None = None, vc: np.ndarray | None = None,
             thrust_gain: np.ndarray | None = None, sway_yaw: np.ndarray | None = None,
-            added_mass: np.ndarray | None = None) -> np.ndarray:
+            added_mass: np.ndarray | None = None, vc_inertia: np.ndarray | None = None) -> np.ndarray:
         """Simulated states (K, S, L+1, nx) for K parameter sets (M, DL, DQ each (K, d, d));
         ``x0`` (K, S, nx) replaces the measured segment starts; ``F0`` (K, d) constant force,
         ``vc`` (K, 2) NED current (see the class docstring); ``thrust_gain`` (K, m) the fraction
         of each thruster's thrust that acts (needs ``thrust``, set by ``_sim_setup``); ``sway_yaw``
         (K, 4) sway-yaw hydrodynamic derivatives Y_r, N_v, Y_|r|r, N_|v|v added to the model's
         (``effects.coupling.SWAY_YAW``: they enter DL and DQ with the sign changed); ``added_mass``
-        (K, d) added to M's diagonal (the added mass, so also to C_A's)."""
+        (K, d) added to M's diagonal (the added mass, so also to C_A's); ``vc_inertia`` (K, 2) the
+        weights (a, b) of the inertia a M_RB + b M_A the current's rate acts through (default: the
+        vessel file's ``current_inertia``)."""
         K = M.shape[0]
         if added_mass is not None:
             M = np.array(M, dtype=float)
@@ -114,12 +139,20 @@ class _Simulator:
         Ms = _sym(np.asarray(M, dtype=float))
         Minv = np.linalg.inv(Ms)
         if not self.coriolis:  # ``coriolis: none`` in the vessel file: the blocks stay, as zeros
-            cor = [np.zeros((K, d, d * d))] * (2 if cur else 1)
+            cor = [np.zeros((K, d, d * d)) for _ in range(2 if cur else 1)]
         elif cur:  # C_RB(nu) nu + C_A(nu_r) nu_r: Coriolis is linear in M
             T_RB = coriolis_tensor(self.M_RB)
             cor = [-np.broadcast_to(Minv @ T_RB, (K, d, d * d)), -Minv @ self._tensor(Ms - self.M_RB)]
         else:
             cor = [-Minv @ self._tensor(Ms)]
+        if cur:  # the inertia on the current's rate: -M^-1 C_I (omega x nu_c), C_I = a M_RB + b M_A
+            wts = np.broadcast_to(np.asarray(self.current_inertia if vc_inertia is None else vc_inertia,
+                                             dtype=float).reshape(-1, 2), (K, 2))
+            if np.any(wts):
+                C_I = wts[:, 0, None, None] * self.M_RB + wts[:, 1, None, None] * (Ms - self.M_RB)
+                E = _cross_basis(d)
+                X = -(Minv @ C_I)[:, :, : E.shape[0]] @ E  # on nu (x) nu, and minus it on nu_r (x) nu_r
+                cor = [cor[0] + X, cor[1] - X]
         W = np.concatenate([Minv, *cor, -Minv @ DL, -Minv @ DQ], axis=2).transpose(0, 2, 1)
         x = np.ascontiguousarray(np.broadcast_to(self.x0 if x0 is None else x0, (K, *self.x0.shape)),
                                  dtype=float)
@@ -209,8 +242,10 @@ class _SimSetup:
 
 
 def _sim_setup(vessel: VesselSpec, prep: _Prepared, i0: int, i1: int, segment: float, sim_dt: float,
-               scale: np.ndarray | None = None) -> _SimSetup | None:
-    """Segments of ``segment`` seconds covering samples [i0, i1), on a grid of about ``sim_dt``."""
+               scale: np.ndarray | None = None, nodes: np.ndarray | None = None) -> _SimSetup | None:
+    """Segments of ``segment`` seconds covering samples [i0, i1), on a grid of about ``sim_dt``;
+    ``nodes`` (indices on that grid) start further segments, each compared up to the next start
+    (all are simulated over one segment's length; what lies past the next start is not compared)."""
     if i1 - i0 < 3:
         return None
     stride = max(1, round(sim_dt / prep.dt))
@@ -220,6 +255,9 @@ def _sim_setup(vessel: VesselSpec, prep: _Prepared, i0: int, i1: int, segment: f
     x_meas = _state(prep.eta[sel], prep.nu[sel], d)
     L = max(1, min(sel.size - 1, round(segment / (stride * prep.dt))))
     starts = np.arange(0, sel.size - 1, L)
+    if nodes is not None and len(nodes):
+        extra = np.asarray(nodes, dtype=int)
+        starts = np.union1d(starts, extra[(extra > 0) & (extra < sel.size - 1)])
     sim = _Simulator(vessel, t, prep.tau[sel], x_meas, starts, L)
     # tau at the RK4 midpoints from the full-rate log (a logged sample when the stride is even)
     t_mid = 0.5 * (t[sim.idx[:, :-1]] + t[sim.idx[:, 1:]])
@@ -234,9 +272,70 @@ def _sim_setup(vessel: VesselSpec, prep: _Prepared, i0: int, i1: int, segment: f
     meas = prep.nu_raw[sel][sim.idx]
     mask = sim.valid.copy()
     mask[:, 0] = False
+    span = np.append(starts[1:], sel.size - 1) - starts  # compared steps of each segment (L unless a node)
+    mask &= np.arange(L + 1)[None, :] <= span[:, None]
     if scale is None:
         scale = np.maximum(prep.nu_raw[i0:i1].std(axis=0), 1e-9)
     return _SimSetup(sim, meas, mask, scale, t)
+
+
+# Multiple shooting on a model that amplifies start errors: a segment along which the model (the
+# vessel file's) amplifies a change of its start velocity more than NODE_GROWTH times, in the
+# kinetic-energy norm, gets another start (node) where it does, its state estimated like every
+# segment's. Why: the AMV, directionally unstable, speeds up from rest at the start of a log and
+# turns one way or the other on a tiny difference (amplification 8-65 there); an output-error fit
+# through that stretch had a ragged cost (a hidden added mass stopped at m_a[N] = 1.6 for 6.3,
+# cost 37 for 32 at the truth) and converged in 11 evaluations once the stretch had nodes. A passive
+# (dissipative) model does not amplify the energy of a start error; the logs of both vessels
+# elsewhere reach 1.0-1.8. Pieces are at least NODE_MIN_S long, NODE_ROUNDS placements at most.
+NODE_GROWTH = 4.0
+NODE_MIN_S = 1.0
+NODE_ROUNDS = 8
+
+
+def shooting_nodes(vessel: VesselSpec, prep: _Prepared, i0: int, i1: int, segment: float, sim_dt: float,
+                   M: np.ndarray, DL: np.ndarray, DQ: np.ndarray, align: int = 1) -> np.ndarray:
+    """Grid indices of the extra segment starts (``NODE_GROWTH``) for the model (M, DL, DQ): each
+    round simulates every segment from its measured start and with its velocity moved along each
+    direction of unit kinetic energy (one batched run), and starts a new segment where the largest
+    amplification, ||M^1/2 Phi(t) M^-1/2||, first passes the bound (at the grid sample before, a
+    multiple of ``align``: the output-error Jacobian's coarse grids then end every compared span on
+    one of their samples, and never interpolate from a sample past it, where the piece runs on
+    uncompared and may diverge)."""
+    d = M.shape[0]
+    w, V = np.linalg.eigh(_sym(M))
+    if np.any(w <= 0):
+        return np.zeros(0, dtype=int)
+    Mh, Mhi = (V * np.sqrt(w)) @ V.T, (V / np.sqrt(w)) @ V.T
+    nodes = np.zeros(0, dtype=int)
+    for _ in range(NODE_ROUNDS):
+        setup = _sim_setup(vessel, prep, i0, i1, segment, sim_dt, nodes=nodes)
+        if setup is None:
+            break
+        sim = setup.sim
+        min_steps = max(align, round(NODE_MIN_S / sim.h))
+        h = 1e-6 * max(float(np.max(np.abs(sim.x0[:, -d:]))), 1e-3) * float(np.sqrt(np.max(w)))
+        X0 = np.repeat(sim.x0[None], 1 + d, axis=0)
+        X0[1:, :, -d:] += h * Mhi.T[:, None, :]  # start velocity + h M^-1/2 e_j
+        K = 1 + d
+        x = sim.run(*(np.repeat(np.asarray(a, dtype=float)[None], K, axis=0) for a in (M, DL, DQ)), X0)
+        dn = (x[1:, ..., -d:] - x[0, ..., -d:]) / h  # (d, S, L+1, d): column j of Phi M^-1/2
+        A = np.einsum("ab,jslb->slaj", Mh, dn)  # (S, L+1, d, d)
+        bad = ~np.all(np.isfinite(A), axis=(2, 3))  # diverged: amplified without bound
+        amp = np.linalg.norm(np.where(bad[..., None, None], 0.0, A), ord=2, axis=(2, 3))  # (S, L+1)
+        amp[bad] = np.inf
+        amp = np.where(setup.mask | (np.arange(amp.shape[1]) == 0), amp, 0.0)
+        new = []
+        for s in range(amp.shape[0]):
+            over = np.flatnonzero(amp[s, min_steps:] > NODE_GROWTH)
+            span = int(np.sum(setup.mask[s]))
+            if over.size and over[0] + min_steps <= span - min_steps:
+                k = int(sim.idx[s, 0] + min_steps + over[0])
+                new.append(max(k // align * align, int(sim.idx[s, 0]) + align))
+        if not new:
+            break
+        nodes = np.union1d(nodes, new)
+    return nodes
 
 
 def _one(effect: dict[str, np.ndarray] | None) -> dict[str, np.ndarray]:
