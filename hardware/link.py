@@ -373,7 +373,7 @@ class HardwareLink:
         self._opened = True
         _OPEN_LINKS.add(self)
         if self.record_dir is not None and self.recorder is None:
-            self.recorder = Recorder(self.record_dir, p.record.can_format)
+            self.recorder = Recorder(self.record_dir, p.record.can_format, warn=self._say)
             self.serial.on_bytes = self.recorder.serial_bytes
             m = len(self._u)
             self.recorder.start_signals(

@@ -20,7 +20,8 @@ its end marker (python-can's readers take such a log as it is).
 A file that cannot be written (a full disk, a file-size limit) stops the recording, never the
 run: the files are closed, each line-oriented one cut back to its last whole line (``can.asc``
 then gets its end marker if there is room), ``link.log`` says why if it can, and one warning
-names the file and the reason (``Recorder.stopped``); the master adds it to the run's log.
+names the file and the reason (``Recorder.stopped``); the link passes it on as its own message
+(``warn``), into the run's log.
 """
 
 from __future__ import annotations
@@ -42,7 +43,7 @@ TRIAL_FILE = "trial.yaml"
 LINE_FORMATS = ("asc", "log", "csv", "trc")  # python-can's text logs: whole lines, a cut one can go
 END_MARKERS = {"asc": "End TriggerBlock\n"}  # what the writer's stop() adds last
 
-log = logging.getLogger("seafmu.hardware.recording")  # the master copies its warnings to the run's log
+log = logging.getLogger("seafmu.hardware.recording")  # warnings of a recorder given no ``warn``
 
 
 class Recorder:

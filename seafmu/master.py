@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
-import logging
 import math
 import signal
 import time
@@ -505,33 +504,31 @@ def run(scenario: Scenario, mode: Mode = "fmu", progress: bool = True,
 
     units: list[Unit] = []
     kinds = {unit_kind(inst, mode) for inst in scenario.instances}
-    links = [inst.name for inst in scenario.instances if inst.hardware is not None]
-    with _recording_warnings(log, links):  # the links' close included
+    try:
+        for inst in scenario.instances:
+            fmu_file = inst.fmu_file or (fmu_files or {}).get(inst.name)
+            in_names = [dv for dv, _, _ in inputs_of.get(inst.name, [])]
+            request = UnitRequest(inst, in_names, scenario.vessel, log, record_dir=record_dir,
+                                  fmu_file=Path(fmu_file) if fmu_file else None)
+            units.append(make_unit(unit_kind(inst, mode), request))
+        unit_errors = run_errors(kinds)
         try:
-            for inst in scenario.instances:
-                fmu_file = inst.fmu_file or (fmu_files or {}).get(inst.name)
-                in_names = [dv for dv, _, _ in inputs_of.get(inst.name, [])]
-                request = UnitRequest(inst, in_names, scenario.vessel, log, record_dir=record_dir,
-                                      fmu_file=Path(fmu_file) if fmu_file else None)
-                units.append(make_unit(unit_kind(inst, mode), request))
-            unit_errors = run_errors(kinds)
-            try:
-                result = _loop(scenario, units, mode, progress, log, stop, sink)
-            except unit_errors as exc:  # a port that cannot open, a vessel that never answers
-                raise _failed(str(exc), exc) from None
-            except OSError as exc:  # a file that failed mid-run (results.csv on a full disk): name it
-                if getattr(exc, "partial", None) is None:  # before the first step: as it is
-                    raise
-                raise _failed(os_error_text(exc), exc) from None
-            paced = [u for u in units if is_paced(u)]
-            if paced:
-                stats = paced[0].pacing_stats()
-                result.pacing, result.pacing_summary = stats.as_dict(), stats.summary()
-            return result
-        finally:
-            for u in units:
-                u.collect_log()
-                _stop_unit(u)
+            result = _loop(scenario, units, mode, progress, log, stop, sink)
+        except unit_errors as exc:  # a port that cannot open, a vessel that never answers
+            raise _failed(str(exc), exc) from None
+        except OSError as exc:  # a file that failed mid-run (results.csv on a full disk): name it
+            if getattr(exc, "partial", None) is None:  # before the first step: as it is
+                raise
+            raise _failed(os_error_text(exc), exc) from None
+        paced = [u for u in units if is_paced(u)]
+        if paced:
+            stats = paced[0].pacing_stats()
+            result.pacing, result.pacing_summary = stats.as_dict(), stats.summary()
+        return result
+    finally:
+        for u in units:
+            u.collect_log()
+            _stop_unit(u)
 
 
 def _failed(text: str, exc: Exception) -> SimulationError:
@@ -541,29 +538,6 @@ def _failed(text: str, exc: Exception) -> SimulationError:
     if err.partial is not None:
         err.partial.error = str(err)
     return err
-
-
-@contextlib.contextmanager
-def _recording_warnings(log: list[str], links: list[str]) -> Iterator[None]:
-    """A hardware link's recorder that cannot write stops recording, not the run, and warns through
-    its logger (it holds no handle on the run): while the run goes (the links' close included),
-    each such warning is named after the links and joins the run's log, so report.md and
-    summary.json say the recording is incomplete."""
-    if not links:
-        yield
-        return
-    from seafmu.hardware.recording import log as recording_log
-
-    def keep(record: logging.LogRecord) -> bool:
-        record.msg, record.args = f"{', '.join(links)}: {record.getMessage()}", ()
-        log.append(record.msg)
-        return True  # still shown as before (stderr, or the handlers a caller set up)
-
-    recording_log.addFilter(keep)
-    try:
-        yield
-    finally:
-        recording_log.removeFilter(keep)
 
 
 def _stop_unit(u: Unit) -> None:

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from conftest import Ports
 
 from seafmu import fmu_cache
 from seafmu.cli import main
@@ -405,21 +406,15 @@ def test_the_master_refuses_an_oversized_scenario_made_in_code() -> None:
 
 
 def test_sigterm_of_a_hardware_run_stops_the_thrusters_and_finishes_the_recording(
-        built_fmus: dict, tmp_path: Path) -> None:
+        built_fmus: dict, tmp_path: Path, own_ports: Ports) -> None:
     """The reported HIL case: SIGTERM left no trial.yaml, an unterminated can.asc and no results.csv.
     Against the emulator on this test's own pseudo-terminals (not the shared /tmp/seafmu-emulator)."""
-    ports = tmp_path / "ports"
-    ports.mkdir()
-    profile = yaml.safe_load((REPO / "hardware" / "profiles" / "emulator_pty.yaml").read_text())
-    profile["serial"]["url"] = str(ports / "nmea")
-    profile["can"]["channel"] = str(ports / "slcan")
-    (tmp_path / "profile.yaml").write_text(yaml.safe_dump(profile, sort_keys=False))
     doc = yaml.safe_load((REPO / "scenarios" / "hil" / "minerva2_dp_emulator.yaml").read_text())
-    doc["fmus"]["plant"] = {"hardware": str(tmp_path / "profile.yaml")}
+    doc["fmus"]["plant"] = {"hardware": str(own_ports.profile)}
     (tmp_path / "hil.yaml").write_text(yaml.safe_dump(doc, sort_keys=False))
     emulator = subprocess.Popen(
-        [sys.executable, "-m", "seafmu.emulate", "minerva2", "--serial", f"pty:{ports / 'nmea'}",
-         "--can", f"slcan:pty:{ports / 'slcan'}", "--scenario", "minerva2_dp", "--duration", "60"],
+        [sys.executable, "-m", "seafmu.emulate", "minerva2", "--serial", f"pty:{own_ports.serial}",
+         "--can", f"slcan:pty:{own_ports.slcan}", "--scenario", "minerva2_dp", "--duration", "60"],
         cwd=REPO, stdout=subprocess.PIPE, text=True)
     out = tmp_path / "out"
     proc = None

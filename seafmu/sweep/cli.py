@@ -115,11 +115,12 @@ def _prepare(study: Study, out: Path, workers: int | None, scheduler: str | None
     up (~0.8 s of CPU, the start's critical path) while the cases are validated (it may be running
     already: ``_early_server``). A case that does not validate closes it; an FMU rebuilt meanwhile
     restarts it and its server (they loaded the old one)."""
-    from seafmu.sweep.execute import StudyFolder, default_workers, scheduler_address, start_local_cluster
+    from seafmu.cores import core_count
+    from seafmu.sweep.execute import StudyFolder, scheduler_address, start_local_cluster
     from seafmu.sweep.study import validate_cases
 
     done = StudyFolder(out).finished(study) if out.is_dir() else {}
-    n = min(workers or default_workers(), len(study.cases) - len(done))
+    n = min(workers or core_count(), len(study.cases) - len(done))
     local = n > 0 and scheduler_address(scheduler) is None
     cluster = start_local_cluster(n, study.scenario_file) if local else None
     try:

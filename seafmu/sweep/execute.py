@@ -56,11 +56,6 @@ STOP_POLL_S = 0.1  # how soon a stop is seen while the cases run (s)
 SERIES = "timeseries"
 
 
-def default_workers() -> int:
-    """The cores this process may use."""
-    return core_count()
-
-
 class StudyFolder:
     """``with StudyFolder(path):`` the folder created and locked for this study run."""
 
@@ -225,7 +220,7 @@ def make_client(workers: int | None, scheduler: str | None, cluster: Any = None)
             where = "--scheduler" if scheduler else "DASK_SCHEDULER_ADDRESS"
             raise StudyError(f"{where} {address}: cannot connect ({' '.join(str(exc).split())})") from None
     if cluster is None:
-        cluster = start_local_cluster(workers or default_workers())
+        cluster = start_local_cluster(workers or core_count())
     # By address, not Client(cluster), which waits until every worker has started: the cases go out at
     # once and each worker takes them as it registers (the first one ~0.1 s sooner with two).
     return Client(cluster.scheduler_address), cluster
@@ -342,7 +337,7 @@ def run_study(study: Study, folder: StudyFolder, workers: int | None = None, sch
         if cluster is not None:
             cluster.close(timeout=10)
         return Outcome(len(study.cases), skipped, 0, "", rows, 0.0, 0)
-    n_workers = min(workers or default_workers(), len(todo))
+    n_workers = min(workers or core_count(), len(todo))
     threading.Thread(target=_import_for_results, args=(bool(study.inputs),), name="seafmu-sweep-imports",
                      daemon=True).start()
     try:
