@@ -676,7 +676,7 @@ def formed(eff: CatalogueEffect, key: str, vessel: VesselSpec) -> CatalogueEffec
     (``key``, ``_log_key``) kept (``_FORMS``); itself where none was kept."""
     parts = getattr(eff, "parts", None)
     if parts is None:
-        if eff.maneuver_form() is None and len(eff.maneuver_forms(vessel)) > 1:
+        if len(eff.maneuver_forms(vessel)) > 1:  # (one of a fixed form has only itself)
             return _FORMS.get((key, vessel.current_inertia, eff.name), eff)
         return eff
     new = [formed(p, key, vessel) for p in parts]

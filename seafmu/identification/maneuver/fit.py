@@ -512,12 +512,13 @@ def screen_extensions(problem: ManeuverProblem, start: dict[str, float], members
     # the fitted part's segments restart from the states fitted with the reference (the measured
     # ones carry the sensor noise, whose transients would swamp the step); the held-out part's from
     # the measured states, as its NRMSE does
-    x0 = _recall_states(_log_key(problem.fit_setup), start)
+    key = _log_key(problem.fit_setup)
+    x0 = _recall_states(key, start)
     setup = _coarse_setup(problem.fit_setup)
     val = _coarse_setup(problem.val_setup) if problem.val_setup is not None else None
     d = vessel.dof
     # a member with several forms (a current's inertia) in the form the log's fits kept
-    members = [formed(m, _log_key(problem.fit_setup), vessel) for m in members]
+    members = [formed(m, key, vessel) for m in members]
     M0, DL0, DQ0, damp = _reference_model(plant, start, d)
     allm = Combined(members, d)
     enames = allm.maneuver_params(d)
