@@ -7,12 +7,16 @@ Two mappings, one interface (``ThrusterCodec``):
   measured speed, enabled, fault bits, alive counter). Standard 11-bit ids, DLC 4. The command's
   4-bit alive counter rises by one per frame; a drive takes a frame whose counter did not advance
   as stale (``hardware/drive.py``), and latches a command timeout until an enable 0 -> 1 edge.
+  The status's counter rises by one per frame too: the link takes a status whose counter did not
+  advance as a repeat, not as news (a hung drive repeating its last frame goes stale).
 - ``nmea2000`` (``nmea2000_thrusters.dbc``): PGN 128006 Thruster Control Status (direction, power,
   speed in % of n_max) as the demand from seafmu's source address and as each thruster's reported
   state from its own; PGN 128008 Thruster Motor Status for fault bits. Limits: 1 % speed steps,
   no command-timeout fault bit; demands go out as broadcast 128006, not wrapped in PGN 126208
   Command Group Function (a fast-packet message), which some commercial thrusters require. The
   demand's SID is seafmu's alive counter (+1 per frame, mod 252); only the emulated drive checks it.
+  A thruster's 128006 with the SID of its previous one is a repeat to the link (SID 252-255, "not
+  available", is never one).
 
 Fault bits (``Feedback.faults``): 1 over-current, 2 over-temperature, 4 command timeout, 8 hardware.
 """
@@ -60,12 +64,16 @@ class Command:
 
 @dataclass(frozen=True)
 class Feedback:
-    """A thruster's report as seafmu receives it (index 0-based); None: not in this frame."""
+    """A thruster's report as seafmu receives it (index 0-based); None: not in this frame.
+    ``counter``: the drive's alive counter (None where the frame has none or says "not available"):
+    a status whose counter did not advance is a repeat of the last one, e.g. a hung drive whose CAN
+    controller keeps sending its last frame (the link does not take it as fresh)."""
 
     index: int
     speed: float | None  # rev/s
     enabled: bool | None
     faults: int | None
+    counter: int | None = None
 
 
 def _check(msg: can.Message, m: cantools.database.Message) -> None:
@@ -173,7 +181,8 @@ class SeafmuCodec(ThrusterCodec):
         if kind == "cmd":
             return Command(i, float(d["speed_setpoint"]), bool(d["enable"]), int(d["counter"]))
         faults = sum(bit for name, bit in _FAULT_SIGNALS if d[name])
-        return self._plausible(Feedback(i, float(d["speed_measured"]), bool(d["enabled"]), faults), m.name)
+        fb = Feedback(i, float(d["speed_measured"]), bool(d["enabled"]), faults, int(d["counter"]))
+        return self._plausible(fb, m.name)
 
 
 class Nmea2000Codec(ThrusterCodec):
@@ -289,7 +298,8 @@ class Nmea2000Codec(ThrusterCodec):
         enabled = bool(d["Power_Enabled"] == 1) and direction != self._OFF
         if (msg.arbitration_id & 0xFF) == self.sa:
             return Command(i, speed, enabled, int(d["SID"]))
-        return self._plausible(Feedback(i, speed, enabled, None), m.name)
+        sid = int(d["SID"])  # 252..255: reserved / not available (a device that numbers nothing)
+        return self._plausible(Feedback(i, speed, enabled, None, sid if sid < 252 else None), m.name)
 
 
 def make_codec(

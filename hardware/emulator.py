@@ -36,7 +36,7 @@ import sys
 import threading
 from collections import Counter
 from collections.abc import Callable
-from datetime import UTC, datetime
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any
 
@@ -124,6 +124,7 @@ class VesselEmulator:
         )
         self.faults = np.zeros(m, dtype=int)
         self._status_count = [0] * m  # status frames sent per drive (their alive counter)
+        self._last_fix: datetime | None = None  # time stamp of the last sample sent
         self.n_shaft = np.zeros(m)  # the shafts' speed now (rev/s), what the status frames report
         self.started = False
         self.pacer: Pacer | None = None
@@ -163,6 +164,16 @@ class VesselEmulator:
                 label = (labels or {}).get(port.what, f"{port.what} port")
                 where = "" if port.name in label else f" {port.name}"
                 raise OSError(f"{label}: cannot open{where}: {port.error}")
+
+    def _fix_time(self) -> datetime:
+        """Wall time to the hundredth of a second GGA and RMC carry, 10 ms past the previous
+        sample's at least: two samples with one time are one fix sent twice to the link."""
+        now = datetime.now(UTC)
+        now = now.replace(microsecond=now.microsecond // 10000 * 10000)
+        if self._last_fix is not None and now <= self._last_fix:
+            now = self._last_fix + timedelta(milliseconds=10)
+        self._last_fix = now
+        return now
 
     def _sentences(self, y: np.ndarray, now: datetime, only: list[int] | None = None) -> bytes:
         lines = []
@@ -209,7 +220,7 @@ class VesselEmulator:
                 for gi in due:
                     next_idle[gi] = wall + 1.0 / self.groups[gi][4]
                 if due:
-                    self.serial.write(self._sentences(y, datetime.now(UTC), due))
+                    self.serial.write(self._sentences(y, self._fix_time(), due))
                 k += 1
                 continue
             if not was_started:
@@ -227,7 +238,7 @@ class VesselEmulator:
             if new:
                 for gi in new:
                     counts[gi] = y[self.groups[gi][3]]
-                self.serial.write(self._sentences(y, datetime.now(UTC), new))
+                self.serial.write(self._sentences(y, self._fix_time(), new))
             due = (k - k0) % self.status_every == 0
             for i in range(len(u)):
                 if due or tripped[i]:  # a trip is reported at once

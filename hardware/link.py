@@ -8,10 +8,14 @@ FMU's variable names, so the observer, controller and allocator FMUs connect to 
   ``n_max``; NaN/inf become 0; the watchdog can force them to 0 (with enable off);
 - outputs ``meas_<channel>`` and ``<sensor>_count`` are decoded from NMEA 0183 sentences; a
   sensor's count rises by one when all the sentences of one sample have arrived (the observer
-  updates on a count change, exactly as with the Plant FMU); the first complete sample of every
+  updates on a count change, exactly as with the Plant FMU; a GGA, RMC or PNORBT7 with the time of
+  the previous one of its kind is the same measurement again, dropped as ``repeated``, so a
+  receiver repeating its last fix does not pass for a live sensor); the first complete sample of every
   sensor is awaited in ``initialize`` and counts as sample 1, like the plant's initial sample;
 - ``n_1..m`` is the thrusters' measured shaft speed from their CAN status frames (NaN before the
-  first, and while that thruster's status is stale: none for ``watchdog.timeout``); ``course`` and
+  first, and while that thruster's status is stale: none for ``watchdog.timeout``; a status whose
+  alive counter did not advance is a repeat, not fresh: a hung drive repeating its last frame goes
+  stale); ``course`` and
   ``sog`` exist when a mapped sentence (RMC, VTG) carries them.
 - link status: ``fault_i`` (the thruster's fault bits), ``watchdog_alarm`` (0/1),
   ``lines_dropped``, ``frames_dropped`` (bad input, running totals; physically implausible values
@@ -72,7 +76,15 @@ from ..components.block import Interface, Signal
 from ..components.thrusters import speed_to_thrust
 from ..components.vessel_spec import VesselSpec, load_vessel, state_unit
 from .canbus import FAULT_COMMAND_TIMEOUT, CanFrameError, Command, Feedback, ThrusterCodec, make_codec
-from .nmea import EXTRA_CHANNELS, SENTENCES, NmeaCodec, NmeaError, check_mapping, default_sentences
+from .nmea import (
+    EXTRA_CHANNELS,
+    SENTENCES,
+    NmeaCodec,
+    NmeaError,
+    check_mapping,
+    default_sentences,
+    fix_time,
+)
 from .pacing import Pacer, PacingStats
 from .profile import HardwareProfile, load_profile
 from .recording import Recorder, trial_meta
@@ -81,10 +93,14 @@ from .transport import CanPort, SerialLines
 log = logging.getLogger("seafmu.hardware")
 
 THRUSTERS = "thrusters"  # watchdog source name of the CAN status frames
-LINE_CLASSES = ("checksum", "malformed", "invalid", "implausible", "line_too_long", "incomplete")
+LINE_CLASSES = (
+    "checksum", "malformed", "invalid", "implausible", "line_too_long", "incomplete",
+    "repeated",  # a timed sentence (GGA, RMC, PNORBT7) with the time of the previous one of its kind
+)
 FRAME_CLASSES = (
     "unknown_id", "wrong_dlc", "decode", "unexpected", "implausible_feedback", "bus_error", "tx_timeout",
     "tx_skipped",  # the rest of a command round after the adapter refused a frame
+    "status_repeated",  # a status whose alive counter did not advance (a hung drive repeating it)
 )
 LOG_FIRST = 5  # one-line log messages per drop class before they are only counted
 CLOSE_ROUNDS = 3  # zero + disable frames per thruster sent by close(), each with a fresh alive counter
@@ -243,6 +259,7 @@ class HardwareLink:
             for s in spec.sensors
         }
         self._sentence_group = {sen: g for g in self.groups.values() for sen in g.sentences}
+        self._fix_time: dict[str, str] = {}  # time field of the last timed sentence taken, per kind
         self.counters: Counter[str] = Counter()
         self._logged: Counter[str] = Counter()
         self.serial = SerialLines(
@@ -269,6 +286,8 @@ class HardwareLink:
         self._last_feedback = -math.inf  # any status frame: the watchdog's `thrusters` source
         self._fb_rx = np.full(m, -math.inf)  # per thruster: loop time of its last status with a speed
         self._fb_seen = np.zeros(m, dtype=bool)  # ever reported its speed
+        self._fb_counter: list[int | None] = [None] * m  # alive counter of each one's last status frame
+        self._fb_counter_at = np.full(m, -math.inf)  # and when it came
         self._fb_lost = np.zeros(m, dtype=bool)  # status stale (older than watchdog.timeout)
         self._fb_lost_since = np.zeros(m)
         self._fb_losses = np.zeros(m, dtype=int)  # times each went stale (the first LOG_FIRST logged)
@@ -708,6 +727,13 @@ class HardwareLink:
             else:
                 self._drop(exc.kind, str(exc))
             return
+        stamp = fix_time(name, text)
+        if stamp is not None:
+            if stamp == self._fix_time.get(name):  # a receiver repeating its last fix is not a new sample
+                self._drop("repeated", f"{name} with the time of the previous one ({stamp}): the same "
+                           "measurement again, not a new sample")
+                return
+            self._fix_time[name] = stamp
         for c in EXTRA_CHANNELS:
             if c in values and c in self._slot:
                 self._y[self._slot[c]] = values[c]
@@ -742,6 +768,16 @@ class HardwareLink:
         if isinstance(item, Command):
             return  # another controller's demand (NMEA 2000 broadcast), not feedback
         fb: Feedback = item
+        if fb.speed is not None and fb.counter is not None and self.profile.can.status_counter:
+            # no news: a hung drive repeats its last frame. After a silence (no status for
+            # watchdog.timeout) an equal counter is a new frame: a 4-bit counter meets its old value
+            # again after 16 lost frames
+            i, last, at = fb.index, self._fb_counter[fb.index], self._fb_counter_at[fb.index]
+            self._fb_counter[i], self._fb_counter_at[i] = fb.counter, now
+            if fb.counter == last and now - at <= self.profile.watchdog.timeout:
+                self._report("status_repeated", f"thruster {i + 1}: status with the alive counter of the "
+                             f"previous one ({fb.counter}) at t = {now:.2f} s: a repeat, not fresh")
+                return
         if fb.speed is not None:
             self._y[fb.index] = fb.speed  # n_i are the first outputs
             self._fb_rx[fb.index] = now

@@ -201,6 +201,7 @@ class Sentence:
     encode: Callable[[dict[str, float], datetime, Ctx], pynmea2.NMEASentence]
     decode: Callable[[pynmea2.NMEASentence, Ctx], dict[str, float]]
     extras: tuple[str, ...] = ()  # course/sog: link outputs, but no sensor channel
+    timed: bool = False  # its first field is the time of its measurement (see fix_time)
 
 
 def _t(name: str, ctx: Ctx, default: str) -> str:
@@ -454,8 +455,8 @@ def _dec_vbw(m: pynmea2.NMEASentence, ctx: Ctx) -> dict[str, float]:
 SENTENCES: dict[str, Sentence] = {
     s.name: s
     for s in (
-        Sentence("GGA", ("north", "east"), "GP", False, _enc_gga, _dec_gga),
-        Sentence("RMC", ("north", "east"), "GP", False, _enc_rmc, _dec_rmc, ("course", "sog")),
+        Sentence("GGA", ("north", "east"), "GP", False, _enc_gga, _dec_gga, timed=True),
+        Sentence("RMC", ("north", "east"), "GP", False, _enc_rmc, _dec_rmc, ("course", "sog"), True),
         Sentence("VTG", (), "GP", False, _enc_vtg, _dec_vtg, ("course", "sog")),
         Sentence("HDT", ("yaw",), "HE", False, _enc_hdt, _dec_heading),
         Sentence("THS", ("yaw",), "HE", False, _enc_ths, _dec_heading),
@@ -478,7 +479,7 @@ SENTENCES: dict[str, Sentence] = {
             _dec_xdr,
         ),
         Sentence("ROT", ("r",), "HE", False, _enc_rot, _dec_rot),
-        Sentence("PNORBT7", ("u", "v", "w"), "", False, _enc_norbt7, _dec_norbt7),
+        Sentence("PNORBT7", ("u", "v", "w"), "", False, _enc_norbt7, _dec_norbt7, timed=True),
         Sentence("VBW", ("u", "v"), "VD", False, _enc_vbw, _dec_vbw),
     )
 }
@@ -497,6 +498,16 @@ _BY_TYPE = {
     "NORBT7": "PNORBT7",
     "VBW": "VBW",
 }
+
+def fix_time(name: str, line: str) -> str | None:
+    """The time field of a sentence that carries its measurement's time (GGA, RMC: UTC hhmmss.ss;
+    PNORBT7: Unix time), as sent; None for the others or an empty field. Two sentences of one kind
+    with the same time are one measurement sent twice (a receiver repeating its last fix)."""
+    if not SENTENCES[name].timed:
+        return None
+    parts = line.split(",", 2)
+    return parts[1] or None if len(parts) > 2 else None
+
 
 # default sentences, in order of preference, for a vessel-file sensor's channels
 _PREFERENCE = ("GGA", "DPT", "XDR_ATTITUDE", "HDT", "PNORBT7", "VBW", "XDR_RATES", "ROT")

@@ -48,6 +48,12 @@ class CanConfig(_Strict):
     thruster_address: int = Field(
         0x20, ge=0, le=253, description="NMEA 2000: source address of thruster 1 (i-th: + i - 1)"
     )
+    status_counter: bool = Field(
+        True,
+        description="the drives advance their status alive counter (NMEA 2000: SID) with every frame, "
+        "so a status repeating the previous one's is a hung drive's repeat, not fresh; false for "
+        "drives that do not count: then only their silence is checked",
+    )
 
 
 class Origin(_Strict):

@@ -8,6 +8,7 @@ import itertools
 import math
 import time
 from collections.abc import Callable, Iterator
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any
 
@@ -55,12 +56,16 @@ class Vessel:
         self.bus = can.Bus(interface="virtual", channel=can_channel)
         self.link_codec = None
         self.nmea = NmeaCodec(63.44, 10.40)
+        self.alive = 0
+        t0 = datetime(2026, 1, 1, tzinfo=UTC)
+        self.fix_times = (t0 + timedelta(seconds=0.1 * k) for k in itertools.count())
 
     def sample(
         self, values: dict[str, float] | None = None, sensors: tuple[str, ...] = tuple(SENSORS)
     ) -> float:
         v = values or VALUES
-        lines = [self.nmea.encode(s, v) for name in sensors for s in SENSORS[name]]
+        utc = next(self.fix_times)  # a live receiver's fix times advance
+        lines = [self.nmea.encode(s, v, utc) for name in sensors for s in SENSORS[name]]
         self.ser.write("".join(ln + "\r\n" for ln in lines).encode())
         self.ser.flush()
         return time.time()
@@ -76,8 +81,9 @@ class Vessel:
         return out
 
     def status(self, link: HardwareLink, speeds: list[float], faults: int = 0) -> None:
+        self.alive += 1  # a live drive's status counter advances with every frame
         for i, n in enumerate(speeds):
-            for msg in link.codec.status(i, n, True, faults, 0):
+            for msg in link.codec.status(i, n, True, faults, self.alive):
                 self.bus.send(msg)
 
     def close(self) -> None:
@@ -274,8 +280,10 @@ def _slcan_rig(tmp_path: Path, body: Callable[[HardwareLink, Any, Callable[[floa
         link = HardwareLink(prof)
         nmea = NmeaCodec(63.44, 10.40)
 
+        alive = itertools.count(1)  # the drive's status counter: +1 per frame
+
         def frame(v: float) -> bytes:
-            good = link.codec.status(2, v, True, 0, 0)[0]
+            good = link.codec.status(2, v, True, 0, next(alive))[0]
             return f"t{good.arbitration_id:03X}{good.dlc}{good.data.hex().upper()}\r".encode()
 
         try:

@@ -15,6 +15,7 @@ import threading
 import time
 import tty
 from collections.abc import Iterator
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
 import can
@@ -37,7 +38,15 @@ VALUES = {
 SENSORS = {"usbl": ["GGA"], "depth": ["DPT"], "ahrs": ["XDR_ATTITUDE", "HDT"], "dvl": ["PNORBT7"],
            "gyro": ["XDR_RATES"]}
 NMEA = NmeaCodec(63.44, 10.40)
-SAMPLE = "".join(NMEA.encode(s, VALUES) + "\r\n" for ss in SENSORS.values() for s in ss).encode()
+_FIX_TIMES = (datetime(2026, 1, 1, tzinfo=UTC) + timedelta(seconds=0.1 * k) for k in itertools.count())
+
+
+def sample() -> bytes:
+    """One sample of every sensor, 0.1 s after the last (a live receiver's fix times advance)."""
+    utc = next(_FIX_TIMES)
+    return "".join(NMEA.encode(s, VALUES, utc) + "\r\n" for ss in SENSORS.values() for s in ss).encode()
+
+
 _chan = itertools.count()
 
 
@@ -68,7 +77,7 @@ class BlockedAdapter:
         self._slave = slave
         self.link = HardwareLink(_profile(self.nm.b, **{"can.channel": self.slave_path}), pace=False)
         self.link.open()
-        self.ser.write(SAMPLE)
+        self.ser.write(sample())
         self.link.initialize(np.zeros(7))
         self.drain()
 
@@ -128,7 +137,7 @@ def test_a_blocked_adapter_costs_one_try_per_step_and_the_line_stays_clean(block
     took = []
     for k in range(5):
         blocked.fill()
-        blocked.ser.write(SAMPLE)
+        blocked.ser.write(sample())
         link.set_inputs(np.full(7, 1.0 + k))
         t0 = time.perf_counter()
         link.do_step(t, h)
@@ -182,7 +191,7 @@ class Vessel:
         self.k = 0
 
     def step(self, link: HardwareLink, silent: set[int] = frozenset()) -> None:  # type: ignore[assignment]
-        self.ser.write(SAMPLE)
+        self.ser.write(sample())
         self.k += 1
         for i in range(7):
             if i not in silent:
@@ -205,7 +214,7 @@ def test_a_silent_drive_is_reported_and_its_speed_is_not_held(tmp_path: Path) ->
         link = HardwareLink(prof, record_dir=tmp_path / "rec")
         try:
             link.open()
-            vessel.ser.write(SAMPLE)
+            vessel.ser.write(sample())
             link.initialize(np.zeros(7))
             t, h = 0.0, 0.05
             link.set_inputs(np.full(7, 3.0))

@@ -30,6 +30,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
 import can
@@ -459,9 +460,13 @@ class Vessel:
         self.ser = serial.serial_for_url(serial_path, timeout=0)
         self.bus = can.Bus(interface="virtual", channel=channel)
         self.nmea = NmeaCodec(63.44, 10.40)
+        self.alive = 0
+        t0 = datetime(2026, 1, 1, tzinfo=UTC)
+        self.fix_times = (t0 + timedelta(seconds=0.1 * k) for k in itertools.count())
 
     def sample(self, sensors: tuple[str, ...] = tuple(SENSORS)) -> None:
-        lines = [self.nmea.encode(s, VALUES) for name in sensors for s in SENSORS[name]]
+        utc = next(self.fix_times)  # a live receiver's fix times advance
+        lines = [self.nmea.encode(s, VALUES, utc) for name in sensors for s in SENSORS[name]]
         self.raw("".join(ln + "\r\n" for ln in lines).encode())
 
     def raw(self, data: bytes) -> None:
@@ -475,8 +480,9 @@ class Vessel:
         return out
 
     def status(self, link: HardwareLink, speed: float) -> None:
+        self.alive += 1  # a live drive's status counter advances with every frame
         for i in range(7):
-            for msg in link.codec.status(i, speed, True, 0, 0):
+            for msg in link.codec.status(i, speed, True, 0, self.alive):
                 self.bus.send(msg)
 
     def close(self) -> None:
