@@ -17,6 +17,9 @@ The vessel waits "in the dock" until the first command frame arrives: its physic
 then, so an emulator started before seafmu is at t = 0 when seafmu's loop is; until then it sends
 its initial sample at the sensors' rates, so the link can start up.
 
+Faults on the wire (``--fault drive-frozen:3@20-30``: silent or frozen sensors and drives over a
+window of vessel time) are scheduled by ``hardware/faults.py``.
+
 A fouled or damaged thruster: ``--thruster-efficiency 3=0.6`` (thruster 3 delivers 60 % of its
 nominal thrust), the plant parameter ``thruster_efficiency_3`` (also from ``--scenario`` or
 ``--set``); the status frames still report the shaft speed, as a real drive would.
@@ -40,12 +43,14 @@ from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any
 
+import can
 import numpy as np
 
 from ..components.plant import PlantBlock
 from ..components.vessel_spec import load_vessel
 from .canbus import CanFrameError, Command
 from .drive import CommandSupervisor
+from .faults import Fault, FaultSchedule, parse_fault
 from .link import LOG_FIRST, HardwareError, make_thruster_codec, sensor_mapping
 from .nmea import NmeaCodec
 from .pacing import Pacer
@@ -67,6 +72,7 @@ class VesselEmulator:
         status_rate: float = 20.0,
         record: str | Path | None = None,
         log_line: Callable[[str], None] | None = None,
+        faults: list[Fault] | None = None,
     ) -> None:
         for name, value, (low, high) in (("step", step, STEP_RANGE), ("status_rate", status_rate,
                                                                       STATUS_RATE_RANGE)):
@@ -129,7 +135,9 @@ class VesselEmulator:
         self.started = False
         self.pacer: Pacer | None = None
         self.t = 0.0
-        self.silenced: set[str] = set()  # sensors not sent (fault injection: sensor silence)
+        self.injected = FaultSchedule(faults or [])  # --fault: silent or frozen sensors and drives
+        self._last_lines: dict[str, list[str]] = {}  # per sensor: its last sample's sentences
+        self._last_status: dict[int, list[can.Message]] = {}  # per drive: its last status frames
         self.stop_event = threading.Event()
         self._record = open(record, "w") if record else None
         if self._record:
@@ -179,11 +187,15 @@ class VesselEmulator:
         lines = []
         extras = {k: float(y[i]) for k, i in self._extra_idx.items()}
         for gi, (name, meas, chans, _, _) in enumerate(self.groups):
-            if (only is not None and gi not in only) or name in self.silenced:
+            if (only is not None and gi not in only) or self.injected.on("sensor-silent", name):
+                continue
+            if self.injected.on("sensor-frozen", name) and name in self._last_lines:
+                lines += self._last_lines[name]  # a hung receiver: the same sentences again
                 continue
             values = dict(zip(chans, (float(y[i]) for i in meas), strict=True)) | extras
-            for sen in self.mapping[name]:
-                lines.append(self.nmea.encode(sen, values, now))
+            sample = [self.nmea.encode(sen, values, now) for sen in self.mapping[name]]
+            self._last_lines[name] = sample
+            lines += sample
         return "".join(f"{ln}\r\n" for ln in lines).encode("ascii")
 
     def _read_commands(self, now: float) -> None:
@@ -229,6 +241,8 @@ class VesselEmulator:
             self.t = (k - k0) * h
             if duration is not None and self.t >= duration - 1e-9:
                 break
+            for line in self.injected.update(self.t):
+                self._say(line)
             tripped = self.drive.update(wall)
             u, on = self.drive.output()
             self.faults = self.drive.faults()
@@ -241,14 +255,20 @@ class VesselEmulator:
                 self.serial.write(self._sentences(y, self._fix_time(), new))
             due = (k - k0) % self.status_every == 0
             for i in range(len(u)):
-                if due or tripped[i]:  # a trip is reported at once
-                    n_i = float(y[self._n_idx[i]])
-                    self._status_count[i] += 1  # the DBC's alive counter: +1 per frame of this drive
-                    count = self._status_count[i]
-                    for msg in self.codec.status(i, n_i, bool(on[i]), int(self.faults[i]), count):
-                        self.can.send(msg)
+                if (due or tripped[i]) and not self.injected.on("drive-silent", i):  # a trip at once
+                    self._send_status(i, float(y[self._n_idx[i]]), bool(on[i]))
             self._write_true(y, self.t + h)
             k += 1
+
+    def _send_status(self, i: int, n_i: float, on: bool) -> None:
+        if self.injected.on("drive-frozen", i) and i in self._last_status:
+            msgs = self._last_status[i]  # a hung drive: its last frames again, alive counter frozen
+        else:
+            self._status_count[i] += 1  # the DBC's alive counter: +1 per frame of this drive
+            msgs = self.codec.status(i, n_i, on, int(self.faults[i]), self._status_count[i])
+            self._last_status[i] = msgs
+        for msg in msgs:
+            self.can.send(msg)
 
     def _write_true(self, y: np.ndarray, t: float = 0.0) -> None:
         if self._record is not None:
@@ -417,6 +437,10 @@ def build_parser(p: argparse.ArgumentParser | None = None,
     p.add_argument("--thruster-efficiency", action="append", default=[], metavar="I=FRACTION",
                    help="thruster I (from 1) delivers FRACTION of its nominal thrust (fouled or damaged, "
                    "0..1.5; the plant parameter thruster_efficiency_I), e.g. 3=0.6")
+    p.add_argument("--fault", action="append", default=[], metavar="KIND:TARGET@START[-END]",
+                   help="inject a fault on the wire from START to END s of vessel time: sensor-silent:"
+                   "SENSOR, sensor-frozen:SENSOR (its last sentences repeated), drive-silent:I, "
+                   "drive-frozen:I (its last status frame repeated), e.g. drive-frozen:3@20-30")
     p.add_argument("--step", type=_number_in(*STEP_RANGE, "s"), default=0.01,
                    help="physics step, s (default 0.01)")
     p.add_argument("--status-rate", type=_number_in(*STATUS_RATE_RANGE, "per s"), default=20.0,
@@ -442,12 +466,13 @@ def main(argv: list[str] | None = None, scenario_params: PlantParameters | None 
     return run_args(args, scenario_params)
 
 
-def _checked(args: argparse.Namespace, iface: str, channel: str,
-             scenario_params: PlantParameters | None) -> tuple[HardwareProfile, dict[str, Any]]:
+def _checked(args: argparse.Namespace, iface: str, channel: str, scenario_params: PlantParameters | None
+             ) -> tuple[HardwareProfile, dict[str, Any], list[Fault]]:
     """Every argument checked, nothing opened: the profile (its ports still the specs as given,
-    ``pty:...``) and the plant's parameters. The vessel, the plant parameters' ranges and the
-    profile's sentence and CAN mappings are tried here as the emulator will use them, so a bad
-    one is one line before any port exists or READY is printed."""
+    ``pty:...``), the plant's parameters and the faults to inject. The vessel, the plant
+    parameters' ranges, the profile's sentence and CAN mappings and the faults are tried here as
+    the emulator will use them, so a bad one is one line before any port exists or READY is
+    printed."""
     _check_args(args, iface)
     base = load_profile(args.profile) if args.profile else None
     options = {"sleep_after_open": 0} if iface == "slcan" else {}
@@ -489,7 +514,8 @@ def _checked(args: argparse.Namespace, iface: str, channel: str,
     PlantBlock(spec, dict(params))
     sensor_mapping(profile, spec)
     make_thruster_codec(profile, spec)
-    return profile, params
+    faults = [parse_fault(f, [s.name for s in spec.sensors], spec.thrusters.count) for f in args.fault]
+    return profile, params, faults
 
 
 def run_args(args: argparse.Namespace, scenario_params: PlantParameters | None = None) -> int:
@@ -500,7 +526,7 @@ def run_args(args: argparse.Namespace, scenario_params: PlantParameters | None =
         if not channel:
             print("seafmu emulate: error: --can must be INTERFACE:CHANNEL", file=sys.stderr)
             return 2
-        profile, params = _checked(args, iface, channel, scenario_params)
+        profile, params, faults = _checked(args, iface, channel, scenario_params)
         ser_emu, ser_link = _port(args.serial, bridges, f"--serial {args.serial}")
         can_emu, can_link = (_port(channel, bridges, f"--can {args.can}") if iface == "slcan"
                              else (channel, channel))
@@ -513,6 +539,7 @@ def run_args(args: argparse.Namespace, scenario_params: PlantParameters | None =
             args.status_rate,
             args.record,
             log_line=lambda text: print(f"seafmu emulate: {text}", file=sys.stderr, flush=True),
+            faults=faults,
         )
         emu.open({"serial": f"--serial {args.serial}", "can": f"--can {args.can}"})
         stop = emu.stop_event
