@@ -303,6 +303,13 @@ class _Reader:
         self.fields(item, full, known)
         return item
 
+    def choice(self, node: dict, key: str, choices: tuple[str, ...]) -> str:
+        """An optional top-level word, one of ``choices`` (the first is the default)."""
+        value = self.get(node, key, "", required=False) or choices[0]
+        if value not in choices:
+            raise self.fail(key, f"must be one of {', '.join(choices)}, got {value!r}")
+        return value
+
     def number(self, node: dict, key: str, where: str, positive: bool = False, default: Any = None,
                units: dict[str, Callable[[float], float]] | None = None) -> float:
         """A finite number within MAX_MAGNITUDE; with ``units``, an optional ``unit:`` beside value
@@ -415,16 +422,9 @@ def _parse(doc: dict, path: Path) -> VesselSpec:
             r_b=r.array(rs, "r_b", "restoring", (3,)),
         )
 
-    coriolis = r.get(doc, "coriolis", "", required=False) or "full"
-    if coriolis not in CORIOLIS_FORMS:
-        raise r.fail("coriolis", f"must be one of {', '.join(CORIOLIS_FORMS)}, got {coriolis!r}")
-    current_inertia = r.get(doc, "current_inertia", "", required=False) or "absolute"
-    if current_inertia not in CURRENT_INERTIA:
-        raise r.fail("current_inertia", f"must be one of {', '.join(CURRENT_INERTIA)}, "
-                     f"got {current_inertia!r}")
-    inertia = r.get(doc, "inertia", "", required=False) or "symmetric"
-    if inertia not in INERTIA_FORMS:
-        raise r.fail("inertia", f"must be one of {', '.join(INERTIA_FORMS)}, got {inertia!r}")
+    coriolis = r.choice(doc, "coriolis", CORIOLIS_FORMS)
+    current_inertia = r.choice(doc, "current_inertia", CURRENT_INERTIA)
+    inertia = r.choice(doc, "inertia", INERTIA_FORMS)
 
     thrusters = _parse_thrusters(r, doc, dof)
     sensors = _parse_sensors(r, doc, dof)

@@ -255,6 +255,8 @@ def test_a_current_is_named_alone_whichever_inertia_form_made_the_log(tmp_path: 
     assert p["v_c_north"] == pytest.approx(TRUE_VC[0], rel=0.05)
     assert p["v_c_east"] == pytest.approx(TRUE_VC[1], rel=0.05)
     assert f"current inertia '{form}'" in doc["extended"]["method"], doc["extended"]["method"]
+    words = {"added": "Fossen's hull in an irrotational current", "absolute": "absolute acceleration"}[form]
+    assert words in d.evidence and "fitted with current inertia" in d.evidence, d.evidence  # names the form
 
 
 @pytest.mark.parametrize(("name", "form"), [("minerva2", "added"), ("minerva2", "relative"),

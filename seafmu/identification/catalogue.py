@@ -128,9 +128,10 @@ def fit_bounds(trial: Trial) -> dict[str, tuple[float, float]]:
 
 
 def evidence(name: str, params: dict[str, float], trial: Trial, base_val: float, ext_val: float,
-             delta_aic: float, runner_up: str | None = None) -> str:
-    """One sentence naming the cause in a naval architect's words, with the numbers that back it."""
-    text = finding(name, params, trial)
+             delta_aic: float, runner_up: str | None = None, form: str | None = None) -> str:
+    """One sentence naming the cause in a naval architect's words, with the numbers that back it
+    (``form``: the physical form it was fitted in, where it has several)."""
+    text = finding(name, params, trial) + (f", fitted with {form}" if form else "")
     gain = (f" (held-out NRMSE {base_val:.3g} -> {ext_val:.3g}, ratio {base_val / ext_val:.2f}, "
             f"dAIC {delta_aic:.1f})") if ext_val > 0 else ""
     alias = f"; '{runner_up}' explains the data almost as well" if runner_up else ""

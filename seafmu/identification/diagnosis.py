@@ -1199,9 +1199,11 @@ def explain(trial: Trial, base: FitResult, cands: list[Candidate], cause: Candid
     assert cause.fit is not None
     words = _params_for_words(cause.fit)
     order = _member_order(cause, cands)
+    # an effect with several physical forms (a current's inertia term in a maneuver): the form fitted
+    form = cause.fit.extras.get("effect_form")
     if cause.size == 1:
         text = catalogue.evidence(cause.effect, words, trial, base.nrmse_validation,
-                                  cause.fit.nrmse_validation, cause.delta_aic)
+                                  cause.fit.nrmse_validation, cause.delta_aic, form=form)
     else:
         groups = cause.member_groups()
         parts = []
@@ -1210,7 +1212,8 @@ def explain(trial: Trial, base: FitResult, cands: list[Candidate], cause: Candid
             own = {k: v for k, v in words.items()
                    if k not in others and k.removesuffix("_halfwidth") not in others}
             parts.append(catalogue.finding(cause.effects[i], own, trial))
-        listed = "; ".join(f"({i + 1}) {p}" for i, p in enumerate(parts))
+        listed = "; ".join(f"({i + 1}) {p}" for i, p in enumerate(parts)) + (f"; fitted with {form}"
+                                                                               if form else "")
         text = (f"{len(order)} effects act together: {listed} (combined: held-out NRMSE "
                 f"{base.nrmse_validation:.3g} -> {cause.fit.nrmse_validation:.3g}, ratio {cause.ratio:.2f}, "
                 f"dAIC {cause.delta_aic:.1f}).")
