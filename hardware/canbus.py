@@ -289,6 +289,13 @@ class Nmea2000Codec(ThrusterCodec):
         i = int(d["Identifier"])
         if i >= self.count:
             raise CanFrameError("unknown_id", f"{m.name}: thruster identifier {i}, vessel has {self.count}")
+        sa = msg.arbitration_id & 0xFF
+        if sa != self.thr_sa + i and not (pgn == 128006 and sa == self.sa):
+            # another controller's demand, or another device's report: neither seafmu's demand nor
+            # the drive's own report (which is all a drive's state may be read from)
+            raise CanFrameError("foreign", f"{m.name} for thruster {i + 1} from source address 0x{sa:02X}: "
+                                f"neither seafmu's demand (0x{self.sa:02X}) nor the drive's report "
+                                f"(0x{self.thr_sa + i:02X})")
         if pgn == 128008:
             events = int(d["Motor_Events"])
             return Feedback(i, None, None, sum(bit for n2k, bit in self._MOTOR_FAULTS if events & n2k))
@@ -296,7 +303,7 @@ class Nmea2000Codec(ThrusterCodec):
         sign = {self._TO_STARBOARD: 1.0, self._TO_PORT: -1.0}.get(direction, 0.0)
         speed = sign * pct / 100.0 * float(self.n_max[i])
         enabled = bool(d["Power_Enabled"] == 1) and direction != self._OFF
-        if (msg.arbitration_id & 0xFF) == self.sa:
+        if sa == self.sa:
             return Command(i, speed, enabled, int(d["SID"]))
         sid = int(d["SID"])  # 252..255: reserved / not available (a device that numbers nothing)
         return self._plausible(Feedback(i, speed, enabled, None, sid if sid < 252 else None), m.name)

@@ -50,7 +50,7 @@ from ..components.plant import PlantBlock
 from ..components.vessel_spec import load_vessel
 from .canbus import CanFrameError, Command
 from .drive import CommandSupervisor
-from .faults import Fault, FaultSchedule, parse_fault
+from .faults import Fault, FaultSchedule, check_faults, parse_fault
 from .link import LOG_FIRST, HardwareError, make_thruster_codec, sensor_mapping
 from .nmea import NmeaCodec
 from .pacing import Pacer
@@ -130,7 +130,7 @@ class VesselEmulator:
         )
         self.faults = np.zeros(m, dtype=int)
         self._status_count = [0] * m  # status frames sent per drive (their alive counter)
-        self._last_fix: datetime | None = None  # time stamp of the last sample sent
+        self._last_fix: dict[str, datetime] = {}  # per sensor: the time stamp of its last sample
         self.n_shaft = np.zeros(m)  # the shafts' speed now (rev/s), what the status frames report
         self.started = False
         self.pacer: Pacer | None = None
@@ -173,18 +173,19 @@ class VesselEmulator:
                 where = "" if port.name in label else f" {port.name}"
                 raise OSError(f"{label}: cannot open{where}: {port.error}")
 
-    def _fix_time(self) -> datetime:
-        """Wall time to the hundredth of a second GGA and RMC carry, 10 ms past the previous
-        sample's at least: two samples with one time are one fix sent twice to the link."""
-        now = datetime.now(UTC)
+    def _fix_time(self, sensor: str, now: datetime) -> datetime:
+        """Wall time to the hundredth of a second GGA and RMC carry, 10 ms past the sensor's previous
+        sample at least: a sample whose time is not later than the last is an old one to the link."""
         now = now.replace(microsecond=now.microsecond // 10000 * 10000)
-        if self._last_fix is not None and now <= self._last_fix:
-            now = self._last_fix + timedelta(milliseconds=10)
-        self._last_fix = now
+        last = self._last_fix.get(sensor)
+        if last is not None and now <= last:
+            now = last + timedelta(milliseconds=10)
+        self._last_fix[sensor] = now
         return now
 
-    def _sentences(self, y: np.ndarray, now: datetime, only: list[int] | None = None) -> bytes:
+    def _sentences(self, y: np.ndarray, only: list[int] | None = None) -> bytes:
         lines = []
+        now = datetime.now(UTC)
         extras = {k: float(y[i]) for k, i in self._extra_idx.items()}
         for gi, (name, meas, chans, _, _) in enumerate(self.groups):
             if (only is not None and gi not in only) or self.injected.on("sensor-silent", name):
@@ -193,7 +194,8 @@ class VesselEmulator:
                 lines += self._last_lines[name]  # a hung receiver: the same sentences again
                 continue
             values = dict(zip(chans, (float(y[i]) for i in meas), strict=True)) | extras
-            sample = [self.nmea.encode(sen, values, now) for sen in self.mapping[name]]
+            stamp = self._fix_time(name, now)
+            sample = [self.nmea.encode(sen, values, stamp) for sen in self.mapping[name]]
             self._last_lines[name] = sample
             lines += sample
         return "".join(f"{ln}\r\n" for ln in lines).encode("ascii")
@@ -203,7 +205,10 @@ class VesselEmulator:
             try:
                 item = self.codec.decode(msg)
             except CanFrameError as exc:
-                self._report("bad_frame", f"dropped (bad_frame, {exc.kind}): {exc}")
+                if exc.kind == "foreign":  # another device's frame (NMEA 2000): not for these drives
+                    self.counters["foreign"] += 1
+                else:
+                    self._report("bad_frame", f"dropped (bad_frame, {exc.kind}): {exc}")
                 continue
             if not isinstance(item, Command):
                 continue
@@ -232,7 +237,7 @@ class VesselEmulator:
                 for gi in due:
                     next_idle[gi] = wall + 1.0 / self.groups[gi][4]
                 if due:
-                    self.serial.write(self._sentences(y, self._fix_time(), due))
+                    self.serial.write(self._sentences(y, due))
                 k += 1
                 continue
             if not was_started:
@@ -252,7 +257,7 @@ class VesselEmulator:
             if new:
                 for gi in new:
                     counts[gi] = y[self.groups[gi][3]]
-                self.serial.write(self._sentences(y, self._fix_time(), new))
+                self.serial.write(self._sentences(y, new))
             due = (k - k0) % self.status_every == 0
             for i in range(len(u)):
                 if (due or tripped[i]) and not self.injected.on("drive-silent", i):  # a trip at once
@@ -515,6 +520,7 @@ def _checked(args: argparse.Namespace, iface: str, channel: str, scenario_params
     sensor_mapping(profile, spec)
     make_thruster_codec(profile, spec)
     faults = [parse_fault(f, [s.name for s in spec.sensors], spec.thrusters.count) for f in args.fault]
+    check_faults(faults, args.duration)
     return profile, params, faults
 
 

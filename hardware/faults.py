@@ -22,7 +22,9 @@ import re
 from dataclasses import dataclass
 
 KINDS = ("sensor-silent", "sensor-frozen", "drive-silent", "drive-frozen")
-_SPEC = re.compile(r"^(?P<kind>[a-z-]+):(?P<target>[A-Za-z0-9_]+)@(?P<start>[^-]+)(?:-(?P<end>.+))?$")
+_SPEC = re.compile(r"^(?P<kind>[a-z-]+):(?P<target>[A-Za-z0-9_]+)@(?P<window>.*)$", re.ASCII)
+_T = r"(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)"  # a time as a plain decimal: float() would take 1_0, 1e1, nan
+_WINDOW = re.compile(rf"^({_T})(?:-({_T}))?$", re.ASCII)
 
 
 @dataclass(frozen=True)
@@ -44,16 +46,6 @@ class Fault:
         return f"{self.kind}:{target}@{self.start:g}{end}"
 
 
-def _seconds(text: str, spec: str, what: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise ValueError(f"--fault {spec}: {what} '{text}' is not a number of seconds") from None
-    if not math.isfinite(value) or value < 0:
-        raise ValueError(f"--fault {spec}: {what} must be a finite time >= 0 s, not {text}")
-    return value
-
-
 def parse_fault(spec: str, sensors: list[str], thrusters: int) -> Fault:
     """A ``--fault`` value checked against the vessel (its sensor names, its thruster count);
     ValueError with one line naming the value and what is wrong."""
@@ -63,8 +55,11 @@ def parse_fault(spec: str, sensors: list[str], thrusters: int) -> Fault:
     kind, target = m["kind"], m["target"]
     if kind not in KINDS:
         raise ValueError(f"--fault {spec}: unknown kind '{kind}' (known: {', '.join(KINDS)})")
-    start = _seconds(m["start"], spec, "start")
-    end = _seconds(m["end"], spec, "end") if m["end"] is not None else math.inf
+    w = _WINDOW.match(m["window"])
+    if w is None:
+        raise ValueError(f"--fault {spec}: '{m['window']}' is not START or START-END in seconds of vessel "
+                         "time, from 0 (e.g. 20 or 20-30.5)")
+    start, end = float(w[1]), float(w[2]) if w[2] is not None else math.inf
     if end <= start:
         raise ValueError(f"--fault {spec}: ends at {end:g} s, not after its start {start:g} s")
     if kind.startswith("sensor-"):
@@ -75,6 +70,20 @@ def parse_fault(spec: str, sensors: list[str], thrusters: int) -> Fault:
     if not target.isdigit() or not 1 <= int(target) <= thrusters:
         raise ValueError(f"--fault {spec}: thruster '{target}': give a number from 1 to {thrusters}")
     return Fault(kind, int(target) - 1, start, end)
+
+
+def check_faults(faults: list[Fault], duration: float | None) -> None:
+    """ValueError (one line) for a fault that would never act: one starting at or after the
+    emulator's ``--duration``, or two of one source at once (which would win?)."""
+    for k, f in enumerate(faults):
+        if duration is not None and f.start >= duration:
+            raise ValueError(f"--fault {f.label}: starts at {f.start:g} s, not before --duration "
+                             f"{duration:g} s")
+        for g in faults[:k]:
+            same = g.target == f.target and g.kind.split("-")[0] == f.kind.split("-")[0]
+            if same and f.start < g.end and g.start < f.end:
+                raise ValueError(f"--fault {f.label}: overlaps --fault {g.label} (one fault per source at a "
+                                 "time)")
 
 
 class FaultSchedule:

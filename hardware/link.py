@@ -76,7 +76,10 @@ from ..components.block import Interface, Signal
 from ..components.thrusters import speed_to_thrust
 from ..components.vessel_spec import VesselSpec, load_vessel, state_unit
 from .canbus import FAULT_COMMAND_TIMEOUT, CanFrameError, Command, Feedback, ThrusterCodec, make_codec
+from .freshness import Freshness, counter_forward, time_forward
 from .nmea import (
+    DAY,
+    DAY_CLOCK,
     EXTRA_CHANNELS,
     SENTENCES,
     NmeaCodec,
@@ -259,7 +262,7 @@ class HardwareLink:
             for s in spec.sensors
         }
         self._sentence_group = {sen: g for g in self.groups.values() for sen in g.sentences}
-        self._fix_time: dict[str, str] = {}  # time field of the last timed sentence taken, per kind
+        self._fix_clocks: dict[str, Freshness[float]] = {}  # per timed sentence kind: its fix times
         self.counters: Counter[str] = Counter()
         self._logged: Counter[str] = Counter()
         self.serial = SerialLines(
@@ -286,8 +289,8 @@ class HardwareLink:
         self._last_feedback = -math.inf  # any status frame: the watchdog's `thrusters` source
         self._fb_rx = np.full(m, -math.inf)  # per thruster: loop time of its last status with a speed
         self._fb_seen = np.zeros(m, dtype=bool)  # ever reported its speed
-        self._fb_counter: list[int | None] = [None] * m  # alive counter of each one's last status frame
-        self._fb_counter_at = np.full(m, -math.inf)  # and when it came
+        forward = counter_forward(self.codec.counter_modulus)
+        self._fb_fresh = [Freshness(forward, p.watchdog.timeout) for _ in range(m)]  # alive counters
         self._fb_lost = np.zeros(m, dtype=bool)  # status stale (older than watchdog.timeout)
         self._fb_lost_since = np.zeros(m)
         self._fb_losses = np.zeros(m, dtype=int)  # times each went stale (the first LOG_FIRST logged)
@@ -729,11 +732,13 @@ class HardwareLink:
             return
         stamp = fix_time(name, text)
         if stamp is not None:
-            if stamp == self._fix_time.get(name):  # a receiver repeating its last fix is not a new sample
-                self._drop("repeated", f"{name} with the time of the previous one ({stamp}): the same "
-                           "measurement again, not a new sample")
+            clock = self._fix_clocks.get(name)
+            if clock is None:
+                clock = self._fix_clocks[name] = Freshness(time_forward(DAY if name in DAY_CLOCK else None))
+            if not clock.news(stamp, now):  # a receiver repeating its last fix(es) is no new sample
+                self._drop("repeated", f"{name} with a time not after the last one taken ("
+                           f"{text.split(',', 2)[1]}): an old measurement again, not a new sample")
                 return
-            self._fix_time[name] = stamp
         for c in EXTRA_CHANNELS:
             if c in values and c in self._slot:
                 self._y[self._slot[c]] = values[c]
@@ -763,25 +768,25 @@ class HardwareLink:
         try:
             item = self.codec.decode(msg)
         except CanFrameError as exc:
-            self._drop(exc.kind, str(exc))
+            if exc.kind == "foreign":  # valid, but another device's (NMEA 2000): counted, not dropped
+                self._report("foreign", f"not ours: {exc}")
+            else:
+                self._drop(exc.kind, str(exc))
             return
         if isinstance(item, Command):
-            return  # another controller's demand (NMEA 2000 broadcast), not feedback
+            return  # seafmu's own demand (an NMEA 2000 broadcast heard back), not feedback
         fb: Feedback = item
-        if fb.speed is not None and fb.counter is not None and self.profile.can.status_counter:
-            # no news: a hung drive repeats its last frame. After a silence (no status for
-            # watchdog.timeout) an equal counter is a new frame: a 4-bit counter meets its old value
-            # again after 16 lost frames
-            i, last, at = fb.index, self._fb_counter[fb.index], self._fb_counter_at[fb.index]
-            self._fb_counter[i], self._fb_counter_at[i] = fb.counter, now
-            if fb.counter == last and now - at <= self.profile.watchdog.timeout:
-                self._report("status_repeated", f"thruster {i + 1}: status with the alive counter of the "
-                             f"previous one ({fb.counter}) at t = {now:.2f} s: a repeat, not fresh")
-                return
         if fb.speed is not None:
+            if (fb.counter is not None and self.profile.can.status_counter
+                    and not self._fb_fresh[fb.index].news(fb.counter, now)):  # a hung drive repeating itself
+                self._report("status_repeated", f"thruster {fb.index + 1}: status whose alive counter "
+                             f"({fb.counter}) does not advance at t = {now:.2f} s: a repeat, not fresh (or "
+                             "not yet seen counting after a silence)")
+                return
             self._y[fb.index] = fb.speed  # n_i are the first outputs
             self._fb_rx[fb.index] = now
             self._fb_seen[fb.index] = True
+            self._last_feedback = now  # (a fault-only frame, NMEA 2000's 128008, does not say it is alive)
         if fb.faults is not None:
             old = self._y[self._slot[f"fault_{fb.index + 1}"]]
             if fb.faults != old:
@@ -798,7 +803,6 @@ class HardwareLink:
                     f"thruster {i + 1}: the drive reports a command timeout at t = {now:.2f} s: "
                     f"re-arming (enable 0, then a ramp from 0 over {self.profile.watchdog.resume_ramp:g} s)",
                 )
-        self._last_feedback = now
 
     def _feedback_ages(self, now: float) -> None:
         """Per thruster: a status older than ``watchdog.timeout`` is stale, so its n_i is NaN (a

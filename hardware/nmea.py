@@ -499,14 +499,27 @@ _BY_TYPE = {
     "VBW": "VBW",
 }
 
-def fix_time(name: str, line: str) -> str | None:
-    """The time field of a sentence that carries its measurement's time (GGA, RMC: UTC hhmmss.ss;
-    PNORBT7: Unix time), as sent; None for the others or an empty field. Two sentences of one kind
-    with the same time are one measurement sent twice (a receiver repeating its last fix)."""
+DAY_CLOCK = ("GGA", "RMC")  # their time is a time of day (it wraps at midnight); PNORBT7's is Unix time
+DAY = 86400.0  # s
+_HHMMSS = re.compile(r"^([0-9]{2})([0-9]{2})([0-9]{2}(?:\.[0-9]+)?)$")
+
+
+def fix_time(name: str, line: str) -> float | None:
+    """The time of the measurement a sentence carries, s (GGA, RMC: of the UTC day, from hhmmss.ss;
+    PNORBT7: Unix time); None for the others or an empty or unreadable field. A sentence whose
+    time is not later than the last one's of its kind is no new measurement (``hardware/link.py``)."""
     if not SENTENCES[name].timed:
         return None
     parts = line.split(",", 2)
-    return parts[1] or None if len(parts) > 2 else None
+    field = parts[1] if len(parts) > 2 else ""
+    if name in DAY_CLOCK:
+        m = _HHMMSS.match(field)
+        return int(m[1]) * 3600.0 + int(m[2]) * 60.0 + float(m[3]) if m else None
+    try:
+        value = float(field)
+    except ValueError:
+        return None
+    return value if math.isfinite(value) else None
 
 
 # default sentences, in order of preference, for a vessel-file sensor's channels

@@ -114,7 +114,8 @@ def test_emulate_accepts_the_bounds_it_names(tmp_path: Path) -> None:
     for extra in (["--step", "1e-4", "--status-rate", "1000"], ["--step", "1", "--status-rate", "0.1"],
                   ["--bitrate", "1000000", "--duration", "1e-3"]):
         args = parser.parse_args(_emulate(tmp_path, *extra)[1:])
-        profile, _ = emulator._checked(args, "slcan", f"pty:{tmp_path / 'slcan'}", None)
+        profile, _, faults = emulator._checked(args, "slcan", f"pty:{tmp_path / 'slcan'}", None)
+        assert faults == []
         assert profile.can.bitrate == args.bitrate
     assert not (tmp_path / "nmea").exists()
 

@@ -12,7 +12,7 @@ import pytest
 
 from seafmu.hardware.emulator import VesselEmulator
 from seafmu.hardware.emulator import main as emulate_main
-from seafmu.hardware.faults import Fault, FaultSchedule, parse_fault
+from seafmu.hardware.faults import Fault, FaultSchedule, check_faults, parse_fault
 from seafmu.hardware.link import HardwareLink
 from seafmu.hardware.profile import load_profile
 from seafmu.hardware.ptybridge import NullModem
@@ -31,15 +31,36 @@ def test_fault_specs_are_read_and_bad_ones_named_in_one_line() -> None:
         "drive-frozen:8@1": "thruster '8': give a number from 1 to 7",
         "drive-frozen:0@1": "thruster '0': give a number from 1 to 7",
         "sensor-frozen:gps@1": "no sensor 'gps' on this vessel (its sensors: usbl, depth, ahrs, dvl, gyro)",
-        "sensor-frozen:dvl@x": "start 'x' is not a number of seconds",
+        "sensor-frozen:dvl@x": "'x' is not START or START-END in seconds of vessel time, from 0",
         "sensor-frozen:dvl@5-2": "ends at 2 s, not after its start 5 s",
-        "sensor-frozen:dvl@inf": "start must be a finite time >= 0 s, not inf",
+        "sensor-frozen:dvl@inf": "'inf' is not START or START-END",
+        "sensor-frozen:dvl@-1": "'-1' is not START or START-END",
+        "sensor-frozen:dvl@1e-3": "'1e-3' is not START or START-END",  # plain decimals only: not 1_0, ...
+        "sensor-frozen:dvl@1_0": "'1_0' is not START or START-END",
+        "sensor-frozen:dvl@\uff11": "'\uff11' is not START or START-END",  # a full-width digit one
     }
     for spec, why in bad.items():
         with pytest.raises(ValueError) as exc:
             parse_fault(spec, SENSORS, 7)
         assert str(exc.value).startswith(f"--fault {spec}: {why}"), str(exc.value)
         assert "\n" not in str(exc.value)
+
+
+def test_faults_that_could_never_act_are_refused() -> None:
+    """Two faults of one source at once (which would win?), or one starting at --duration or later."""
+    def check(specs: list[str], duration: float | None = None) -> None:
+        check_faults([parse_fault(f, SENSORS, 7) for f in specs], duration)
+
+    check(["drive-frozen:3@1-2", "drive-silent:3@2-4", "sensor-frozen:dvl@1-3", "drive-frozen:4@1"], 10.0)
+    for specs, duration, why in (
+        (["drive-frozen:3@1-5", "drive-silent:3@2-4"], None,
+         "--fault drive-silent:3@2-4: overlaps --fault drive-frozen:3@1-5 (one fault per source at a time)"),
+        (["sensor-silent:dvl@0", "sensor-silent:dvl@0"], None, "--fault sensor-silent:dvl@0: overlaps"),
+        (["drive-frozen:3@50"], 2.0, "--fault drive-frozen:3@50: starts at 50 s, not before --duration 2 s"),
+    ):
+        with pytest.raises(ValueError) as exc:
+            check(specs, duration)
+        assert str(exc.value).startswith(why), str(exc.value)
 
 
 def test_the_schedule_says_when_each_fault_starts_and_ends() -> None:
