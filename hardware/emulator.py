@@ -47,7 +47,7 @@ import can
 import numpy as np
 
 from ..components.plant import PlantBlock
-from ..components.vessel_spec import load_vessel
+from ..components.vessel_spec import VesselSpec, load_vessel
 from .canbus import CanFrameError, Command
 from .drive import CommandSupervisor
 from .faults import Fault, FaultSchedule, check_faults, parse_fault
@@ -312,7 +312,7 @@ PlantParameters = Callable[[str], dict[str, Any]]
 
 
 def _plant_params(scenario: str | None, sets: list[str], scenario_params: PlantParameters | None = None,
-                  efficiencies: list[str] | None = None) -> dict[str, Any]:
+                  efficiencies: list[str] | None = None, spec: VesselSpec | None = None) -> dict[str, Any]:
     """The plant's parameters: the scenario's, then ``--set NAME=VALUE``, then
     ``--thruster-efficiency I=FRACTION`` (a fouled or damaged thruster, 1-based I); the plant
     checks names and ranges."""
@@ -322,14 +322,20 @@ def _plant_params(scenario: str | None, sets: list[str], scenario_params: PlantP
             raise ValueError("--scenario needs seafmu's scenario reader: use `seafmu emulate` "
                              "or `python -m seafmu.emulate`")
         params.update(scenario_params(scenario))
+        own = params.pop("vessel_file", None)
+        if own is not None and spec is not None and load_vessel(own).name != spec.name:
+            raise ValueError(f"--scenario {scenario}: a scenario of vessel '{load_vessel(own).name}', not "
+                             f"'{spec.name}'")
     for item in sets:
         key, _, value = item.partition("=")
         params[key.strip()] = _number("--set", item, value)
     for item in efficiencies or []:
         index, _, value = item.partition("=")
-        if not index.strip().isdigit() or int(index) < 1:
+        count = spec.thrusters.count if spec is not None else None
+        if not index.strip().isdigit() or int(index) < 1 or (count is not None and int(index) > count):
+            span = f"from 1 to {count}" if count is not None else "from 1"
             raise ValueError(f"--thruster-efficiency {item!r}: expected THRUSTER=FRACTION with THRUSTER "
-                             "a thruster number from 1, e.g. 3=0.6")
+                             f"a thruster number {span}, e.g. 3=0.6")
         params[f"thruster_efficiency_{int(index)}"] = _number("--thruster-efficiency", item, value)
     return params
 
@@ -513,9 +519,9 @@ def _checked(args: argparse.Namespace, iface: str, channel: str, scenario_params
     )
     if args.command_timeout is not None:
         profile = profile.model_copy(update={"command_timeout": args.command_timeout})
-    params = _plant_params(getattr(args, "scenario", None), args.set, scenario_params,
-                           args.thruster_efficiency)
     spec = load_vessel(profile.vessel)
+    params = _plant_params(getattr(args, "scenario", None), args.set, scenario_params,
+                           args.thruster_efficiency, spec)
     PlantBlock(spec, dict(params))
     sensor_mapping(profile, spec)
     make_thruster_codec(profile, spec)

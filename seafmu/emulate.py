@@ -11,15 +11,16 @@ from typing import Any
 
 
 def scenario_plant_parameters(scenario: str) -> dict[str, Any]:
-    """The plant instance's parameters of a scenario (seed, current, initial state), without
-    ``vessel_file``; none when the scenario has no seafmu plant."""
+    """The plant instance's parameters of a scenario (seed, current, initial state), and its vessel
+    as ``vessel_file`` (the emulator checks it is its own); none when the scenario has no seafmu
+    plant."""
     from seafmu.scenario import load_scenario
 
     sc = load_scenario(scenario)
     plant = next((i for i in sc.instances if i.kind == "plant"), None)
     if plant is None:
         return {}
-    return {k: v for k, v in plant.parameters.items() if k != "vessel_file"}
+    return {**plant.parameters, "vessel_file": sc.vessel}
 
 
 def main(argv: list[str] | None = None) -> int:

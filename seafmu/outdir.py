@@ -28,15 +28,17 @@ from itertools import islice
 from pathlib import Path
 
 LOCK_FILE = ".seafmu-run.lock"
+SWEEP_LOCK_FILE = ".seafmu-sweep.lock"  # a study folder's (seafmu/sweep/execute.py)
 OUTPUTS = ("results.csv", "results.parquet", "summary.json", "report.md", "trajectory.png", "states.png",
            "thrusters.png", "allocation.png")
 OUTPUT_DIRS = ("recording",)
 MARKER = ".seafmu-output"
-# A folder holding one of these was written by seafmu: the marker, run's lock file, and the files the
-# commands wrote before the marker existed (run and testplan summary.json, identify and diagnose
-# their reports, export --osp its system structure).
-SIGNATURES = (MARKER, LOCK_FILE, "summary.json", "identification.json", "identification.md",
-              "diagnosis.json", "diagnosis.md", "OspSystemStructure.xml")
+# A folder holding one of these was written by seafmu: the marker, run's and sweep's lock files, and
+# the files the commands wrote before the marker existed (run and testplan summary.json, identify and
+# diagnose their reports, export --osp its system structure, sweep its cases).
+SIGNATURES = (MARKER, LOCK_FILE, SWEEP_LOCK_FILE, "summary.json", "identification.json",
+              "identification.md", "diagnosis.json", "diagnosis.md", "OspSystemStructure.xml",
+              "cases.parquet")
 
 
 class OutputFolderError(RuntimeError):

@@ -99,6 +99,13 @@ def test_emulate_numbers_out_of_range_name_the_flag_and_its_range(
     (["--record", "{tmp}/nofolder/true.csv"], "nofolder does not exist"),
     (["--thruster-efficiency", "3=2"], "'thruster_efficiency_3' must be within [0, 1.5]"),
     (["--profile", "emulator_pty", "--set", "seed=-1"], "seed"),
+    (["--thruster-efficiency", "9=0.5"], "'9=0.5': expected THRUSTER=FRACTION with THRUSTER a thruster "
+     "number from 1 to 7"),
+    (["--scenario", "amv_osf_autopilot"], "--scenario amv_osf_autopilot: a scenario of vessel 'amv_osf', not "
+     "'minerva2'"),
+    (["--fault", "drive-frozen:3@0.1-0.3", "--fault", "drive-silent:3@0.2"],
+     "--fault drive-silent:3@0.2: overlaps"),
+    (["--fault", "drive-frozen:3@1"], "--fault drive-frozen:3@1: starts at 1 s, not before --duration 0.5 s"),
 ])
 def test_emulate_arguments_together_are_checked_before_any_port(
         tmp_path: Path, capsys: pytest.CaptureFixture[str], no_ports: None, extra: list[str],

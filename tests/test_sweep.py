@@ -331,6 +331,20 @@ def test_a_folder_of_another_study_is_refused(tmp_path: Path, capsys: pytest.Cap
     assert main(["sweep", str(path), "--out", str(out), "--dry-run"]) == 0
 
 
+def test_a_folder_of_the_user_s_own_files_is_refused(tmp_path: Path,
+                                                     capsys: pytest.CaptureFixture[str]) -> None:
+    """As run -o: a folder that holds files but no sweep's (its report.md would be replaced)."""
+    path = _write(tmp_path, 8, "name: mine\nscenario: base.yaml\nseeds: 2\n")
+    out = tmp_path / "userdir"
+    out.mkdir()
+    (out / "notes.txt").write_text("mine")
+    assert main(["sweep", str(path), "--out", str(out), "--workers", "1"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1, err
+    assert "not empty and not a seafmu output folder (it holds notes.txt)" in err, err
+    assert sorted(p.name for p in out.iterdir()) == ["notes.txt"]  # nothing written
+
+
 def test_numbers_with_an_exponent_are_numbers(tmp_path: Path) -> None:
     """YAML reads ``1e2`` (no point) as text; it is still 100, never 1 in a unit 'e2'."""
     path = _write(tmp_path, 8, "name: e\nscenario: base.yaml\nvary:\n"

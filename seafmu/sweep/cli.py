@@ -167,6 +167,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
 def _sweep(args: argparse.Namespace) -> int:
     from seafmu.master import StopRequest, stop_on_signals
+    from seafmu.outdir import check_output_folder
     from seafmu.sweep.execute import StudyFolder, run_study, write_cases
     from seafmu.sweep.report import write_study_report
     from seafmu.sweep.study import load_study, validate_cases
@@ -174,6 +175,8 @@ def _sweep(args: argparse.Namespace) -> int:
 
     study = load_study(study_path(args.study), validate=False)
     out = Path(args.out) if args.out else Path("results") / "sweeps" / study.name
+    if not args.dry_run:
+        check_output_folder(out)  # not a folder of the user's own files (its report.md would be replaced)
     _check_folder_study(out, study)
     if args.dry_run:
         validate_cases(study)

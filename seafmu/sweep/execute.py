@@ -44,13 +44,13 @@ import numpy as np
 
 from seafmu.cores import core_count, usable_cores
 from seafmu.master import StopRequest
-from seafmu.outdir import atomic_path, atomic_write_text
+from seafmu.outdir import SWEEP_LOCK_FILE, atomic_path, atomic_write_text
 from seafmu.sweep import forkserver
 from seafmu.sweep.study import Case, Study, StudyError
 from seafmu.sweep.warm import PIN_ENV, WARMUP_ENV, collector_paused
 from seafmu.sweep.worker import PASS, run_case
 
-LOCK_FILE = ".seafmu-sweep.lock"
+LOCK_FILE = SWEEP_LOCK_FILE
 ROWS = "cases"
 STOP_POLL_S = 0.1  # how soon a stop is seen while the cases run (s)
 SERIES = "timeseries"
