@@ -157,12 +157,25 @@ def read_mapping(path: Path, what: str, error: type[ValueError],
 
 
 def validation_message(exc: ValidationError) -> str:
-    """Pydantic's first error as one line: ``field.path: what is wrong (got value)``."""
-    err = exc.errors()[0]
+    """Pydantic's first error as one line: ``field.path: what is wrong (got value)``. An unknown
+    field comes before a missing one, with the missing one it may be a misspelling of (``duraton``
+    for ``duration``: "required field is missing" alone would not say what to fix)."""
+    import difflib
+
+    errors = exc.errors()
+    unknown = [e for e in errors if e["type"] == "extra_forbidden"]
+    err = unknown[0] if unknown else errors[0]
     loc = ".".join(str(p) for p in err["loc"]) or "(top level)"
     plain = {"extra_forbidden": "unknown field", "missing": "required field is missing"}
-    msg = plain.get(err["type"], err["msg"])
-    got = "" if err["type"] in ("missing", "extra_forbidden") else f" (got {_short(err.get('input'))})"
+    msg = plain.get(err["type"], err["msg"]).removeprefix("Value error, ")
+    if err["type"] == "extra_forbidden":
+        missing = [str(e["loc"][-1]) for e in errors if e["type"] == "missing"
+                   and tuple(e["loc"][:-1]) == tuple(err["loc"][:-1])]
+        near = difflib.get_close_matches(str(err["loc"][-1]), missing, n=1)
+        if near:
+            msg += f" (did you mean '{near[0]}'? it is missing)"
+    quiet = err["type"] in ("missing", "extra_forbidden") or "(got " in msg
+    got = "" if quiet else f" (got {_short(err.get('input'))})"
     return " ".join(f"{loc}: {msg}{got}".split())
 
 

@@ -1,5 +1,6 @@
 """A `seafmu run` log of the default DP scenario (Minerva 2 holding station in a 0.1 m/s current
-towards 45 deg, setpoint steps): the diagnosis names the current with its speed and direction.
+towards 45 deg, setpoint steps): the diagnosis names the current with its speed and direction,
+and with a lost thruster as well, both.
 
 Station keeping barely excites the hull, so the baseline (damping fitted freely, no current) takes
 up the current's force in absurd damping (yaw damping 40 000 times the file's); the current's own
@@ -18,16 +19,25 @@ from seafmu.identification.diagnosis import diagnose
 from seafmu.identification.trial import csv_trial
 
 
-def test_the_default_dp_run_s_current_is_named(tmp_path: Path) -> None:
+@pytest.mark.parametrize("lost", [None, 3])
+def test_the_default_dp_run_s_current_and_a_lost_thruster_are_named(tmp_path: Path, lost: int | None) -> None:
+    """The default DP run (a current), and the same with thruster 3 at 60 % (``--set
+    plant.thruster_efficiency_3=0.6``): the current, and the pair current + thruster_loss, which
+    the pair search also screens from the vessel file's damping where the baseline's is far from
+    it (``diagnosis._file_reference``; before: ``none``)."""
     from seafmu.master import run
     from seafmu.results import write_csv
-    from seafmu.scenario import load_scenario
+    from seafmu.scenario import load_scenario, parse_override
 
+    sets = [parse_override(f"plant.thruster_efficiency_{lost}=0.6")] if lost else []
     path = tmp_path / "results.csv"
-    write_csv(run(load_scenario("minerva2_dp"), mode="inprocess", progress=False), path)
+    write_csv(run(load_scenario("minerva2_dp", sets), mode="inprocess", progress=False), path)
     d = diagnose(csv_trial(path, "minerva2"))
     doc = d.to_json()
-    assert doc["cause"]["effects"] == ["current"], d.evidence
+    named = sorted(doc["cause"]["effects"])
+    assert named == (["current", "thruster_loss"] if lost else ["current"]), d.evidence
     p = doc["extended"]["params"]
     truth = 0.1 * math.cos(math.radians(45.0))  # north = east
     assert p["v_c_north"] == pytest.approx(truth, rel=0.1) and p["v_c_east"] == pytest.approx(truth, rel=0.1)
+    if lost:
+        assert p[f"eta_T[{lost}]"] == pytest.approx(0.6, abs=0.03)

@@ -64,6 +64,8 @@ _DELETE = object()
 CASES = [
     ("unknown top-level field", {"durration": 5}, "durration: unknown field"),
     ("missing vessel", {"vessel": _DELETE}, "vessel: required field is missing"),
+    ("misspelled required field", {"duration": _DELETE, "duraton": 10},
+     "duraton: unknown field (did you mean 'duration'? it is missing)"),
     ("unknown vessel", {"vessel": "titanic"}, "vessel: vessel 'titanic'"),
     ("negative duration", {"duration": -1}, "duration: Input should be greater than 0"),
     ("true as a duration", {"duration": True}, "duration: expected a number, not true or false"),
@@ -124,7 +126,7 @@ CASES = [
     ("lawnmower lines above their maximum", {"fmus/controller/parameters": {"lm_lines": 100000}},
      "fmus.controller.parameters.lm_lines: 100000 is above the maximum 1000"),
     ("record interval not a multiple", {"record_interval": 0.07}, "record_interval: 0.07 s must be"),
-    ("check without bound", {"checks/0/max": _DELETE}, "checks.0: Value error, a check needs 'max' or 'min'"),
+    ("check without bound", {"checks/0/max": _DELETE}, "checks.0: a check needs 'max' or 'min'"),
     ("parameter below minimum", {"fmus/plant/parameters/noise_scale": -1},
      "fmus.plant.parameters.noise_scale: -1 is below the minimum 0"),
     ("parameter that does not exist", {"fmus/plant/parameters/gravity": 9.8},

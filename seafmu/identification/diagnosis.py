@@ -743,6 +743,9 @@ def _screen_pairs(trial: Trial, base: FitResult, singles: list[Candidate], membe
     chosen = sorted(ranked, key=lambda c: not c.accepted)[:MANEUVER_REFERENCES]  # accepted first
     refs = [(dict(c.fit.params), [i for i, s in single_of.items() if s is c])  # type: ignore[union-attr]
             for c in chosen] or [(dict(base.params), [])]
+    file_ref = _file_reference(problem, base)
+    if file_ref is not None:  # the baseline's damping took up what the effects explain: from the file too
+        refs.append((file_ref, []))
     best_single = min((c.fit.nrmse_validation for c in singles if c.accepted and c.fit is not None),
                       default=math.inf)
     promising: dict[frozenset[int], Any] = {}
@@ -767,6 +770,23 @@ def _screen_pairs(trial: Trial, base: FitResult, singles: list[Candidate], membe
                     old is None or pair.nrmse_validation < old.nrmse_validation):
                 promising[frozenset((i, j))] = pair
     return sorted(promising.values(), key=lambda sc: sc.nrmse_validation)
+
+
+def _file_reference(problem: Any, base: FitResult) -> dict[str, float] | None:
+    """The vessel file's damping diagonals under the baseline's names, where the baseline's are far
+    from them (``maneuver.estimation.FAR_FROM_FILE``: a DP log in a current and with a lost
+    thruster, yaw damping 40 000 x the file's): a pair screened only from the baseline stays in
+    the basin its damping is in. None where the baseline is near the file (no second screen)."""
+    from seafmu.identification.maneuver.estimation import FAR_FROM_FILE
+
+    plant = problem.plant
+    file = {n: float(plant["D_L" if n.startswith("D_L") else "D_Q"][int(n[4]), int(n[6])])
+            for n in base.params if n.startswith(("D_L[", "D_Q[")) and n[4] == n[6]}
+    if not file:
+        return None
+    big = max(abs(v) for v in file.values())
+    far = any(abs(base.params[n] - v) > FAR_FROM_FILE * max(abs(v), 0.05 * big) for n, v in file.items())
+    return {**dict(base.params), **file} if far else None
 
 
 Grown = tuple[list[Candidate], tuple[int, ...]]
