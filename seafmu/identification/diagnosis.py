@@ -741,15 +741,18 @@ def _screen_pairs(trial: Trial, base: FitResult, singles: list[Candidate], membe
     ranked = sorted((c for c in singles if c.fit is not None and c.delta_aic <= rule.max_delta_aic),
                     key=lambda c: c.fit.aic)  # type: ignore[union-attr]
     chosen = sorted(ranked, key=lambda c: not c.accepted)[:MANEUVER_REFERENCES]  # accepted first
-    refs = [(dict(c.fit.params), [i for i, s in single_of.items() if s is c])  # type: ignore[union-attr]
-            for c in chosen] or [(dict(base.params), [])]
+    refs = [(dict(c.fit.params), [i for i, s in single_of.items() if s is c], False)  # type: ignore[union-attr]
+            for c in chosen] or [(dict(base.params), [], False)]
     file_ref = _file_reference(problem, base)
     if file_ref is not None:  # the baseline's damping took up what the effects explain: from the file too
-        refs.append((file_ref, []))
+        # (one step from that far is rough: such a pair is not held to an accepted single's error
+        # before its fit, only after it)
+        refs.append((file_ref, [], True))
     best_single = min((c.fit.nrmse_validation for c in singles if c.accepted and c.fit is not None),
                       default=math.inf)
     promising: dict[frozenset[int], Any] = {}
-    for values, have in refs:
+    rough_ones: dict[frozenset[int], Any] = {}
+    for values, have, rough in refs:
         pairs = [(i, j) for i in range(len(members)) for j in range(i + 1, len(members))
                  if _pairable(members[i], members[j], d) and (not have or i in have or j in have)]
         subs = [(i,) for i in have] if have else [(), *((i,) for i in range(len(members)))]
@@ -761,15 +764,20 @@ def _screen_pairs(trial: Trial, base: FitResult, singles: list[Candidate], membe
         for i, j in pairs if screened else []:
             pair = by[(i, j)]
             parts = [by[(k,)] for k in (i, j) if (k,) in by] or [by[()]]
-            if pair.nrmse_validation * rule.min_ratio > best_single or _claim_contradicted(
+            if (not rough and pair.nrmse_validation * rule.min_ratio > best_single) or _claim_contradicted(
                     trial, [members[i], members[j]], pair.start, noise):
                 continue  # cannot beat an accepted single effect, or claims what the data deny
-            old = promising.get(frozenset((i, j)))
+            into = rough_ones if rough else promising
+            old = into.get(frozenset((i, j)))
             if all(_screen_passes(pair, sub, _size(members, pair.members, d) - _size(members, sub.members, d))
                    for sub in parts) and (
                     old is None or pair.nrmse_validation < old.nrmse_validation):
-                promising[frozenset((i, j))] = pair
-    return sorted(promising.values(), key=lambda sc: sc.nrmse_validation)
+                into[frozenset((i, j))] = pair
+    # the pairs from the vessel file's damping after the others: where those are fitted, they are
+    # not displaced (a rough step can look better than it fits)
+    rough_ones = {k: v for k, v in rough_ones.items() if k not in promising}
+    return (sorted(promising.values(), key=lambda sc: sc.nrmse_validation)
+            + sorted(rough_ones.values(), key=lambda sc: sc.nrmse_validation))
 
 
 def _file_reference(problem: Any, base: FitResult) -> dict[str, float] | None:
@@ -777,16 +785,15 @@ def _file_reference(problem: Any, base: FitResult) -> dict[str, float] | None:
     from them (``maneuver.estimation.FAR_FROM_FILE``: a DP log in a current and with a lost
     thruster, yaw damping 40 000 x the file's): a pair screened only from the baseline stays in
     the basin its damping is in. None where the baseline is near the file (no second screen)."""
-    from seafmu.identification.maneuver.estimation import FAR_FROM_FILE
+    from seafmu.identification.maneuver.estimation import far_from_file
 
     plant = problem.plant
     file = {n: float(plant["D_L" if n.startswith("D_L") else "D_Q"][int(n[4]), int(n[6])])
             for n in base.params if n.startswith(("D_L[", "D_Q[")) and n[4] == n[6]}
-    if not file:
+    if not file or not far_from_file(plant, problem.prep.nu_raw, list(file),
+                                     np.array([base.params[n] for n in file])):
         return None
-    big = max(abs(v) for v in file.values())
-    far = any(abs(base.params[n] - v) > FAR_FROM_FILE * max(abs(v), 0.05 * big) for n, v in file.items())
-    return {**dict(base.params), **file} if far else None
+    return {**dict(base.params), **file}
 
 
 Grown = tuple[list[Candidate], tuple[int, ...]]
