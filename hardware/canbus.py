@@ -287,8 +287,6 @@ class Nmea2000Codec(ThrusterCodec):
         except (DecodeError, ValueError) as exc:
             raise CanFrameError("decode", f"{m.name}: {exc}") from None
         i = int(d["Identifier"])
-        if i >= self.count:
-            raise CanFrameError("unknown_id", f"{m.name}: thruster identifier {i}, vessel has {self.count}")
         sa = msg.arbitration_id & 0xFF
         if sa != self.thr_sa + i and not (pgn == 128006 and sa == self.sa):
             # another controller's demand, or another device's report: neither seafmu's demand nor
@@ -296,6 +294,8 @@ class Nmea2000Codec(ThrusterCodec):
             raise CanFrameError("foreign", f"{m.name} for thruster {i + 1} from source address 0x{sa:02X}: "
                                 f"neither seafmu's demand (0x{self.sa:02X}) nor the drive's report "
                                 f"(0x{self.thr_sa + i:02X})")
+        if i >= self.count:
+            raise CanFrameError("unknown_id", f"{m.name}: thruster identifier {i}, vessel has {self.count}")
         if pgn == 128008:
             events = int(d["Motor_Events"])
             return Feedback(i, None, None, sum(bit for n2k, bit in self._MOTOR_FAULTS if events & n2k))

@@ -323,9 +323,9 @@ def _plant_params(scenario: str | None, sets: list[str], scenario_params: PlantP
                              "or `python -m seafmu.emulate`")
         params.update(scenario_params(scenario))
         own = params.pop("vessel_file", None)
-        if own is not None and spec is not None and load_vessel(own).name != spec.name:
-            raise ValueError(f"--scenario {scenario}: a scenario of vessel '{load_vessel(own).name}', not "
-                             f"'{spec.name}'")
+        theirs = load_vessel(own).name if own is not None and spec is not None else None
+        if theirs is not None and spec is not None and theirs != spec.name:
+            raise ValueError(f"--scenario {scenario}: a scenario of vessel '{theirs}', not '{spec.name}'")
     for item in sets:
         key, _, value = item.partition("=")
         params[key.strip()] = _number("--set", item, value)

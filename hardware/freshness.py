@@ -22,8 +22,8 @@ T = TypeVar("T")
 
 
 def counter_forward(modulus: int) -> Callable[[int, int], bool]:
-    """b is after a on a counter modulo ``modulus``: 1 to half the range ahead (frames lost
-    between are allowed; more than half is behind)."""
+    """b is after a on a counter modulo ``modulus``: 1 to less than half the range ahead (frames
+    lost between are allowed; half or more is behind)."""
     half = modulus // 2
 
     def forward(a: int, b: int) -> bool:

@@ -20,7 +20,7 @@ def scenario_plant_parameters(scenario: str) -> dict[str, Any]:
     plant = next((i for i in sc.instances if i.kind == "plant"), None)
     if plant is None:
         return {}
-    return {**plant.parameters, "vessel_file": sc.vessel}
+    return {"vessel_file": sc.vessel, **plant.parameters}  # the plant's own vessel file, if it names one
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -158,8 +158,8 @@ def read_mapping(path: Path, what: str, error: type[ValueError],
 
 def validation_message(exc: ValidationError) -> str:
     """Pydantic's first error as one line: ``field.path: what is wrong (got value)``. An unknown
-    field comes before a missing one, with the missing one it may be a misspelling of (``duraton``
-    for ``duration``: "required field is missing" alone would not say what to fix)."""
+    field comes first (before any other error), with the missing field it may be a misspelling of
+    (``duraton`` for ``duration``: "required field is missing" alone would not say what to fix)."""
     import difflib
 
     errors = exc.errors()

@@ -276,6 +276,11 @@ def test_nmea2000_frames_of_other_devices_are_not_a_drive_s_report() -> None:
         with pytest.raises(CanFrameError) as exc:
             n2k.decode(other)
         assert exc.value.kind == "foreign" and f"0x{sa:02X}" in str(exc.value), str(exc.value)
+    big = n2k._ctrl.encode({**n2k._ctrl.decode(bytes(demand.data), decode_choices=False), "Identifier": 9})
+    other = can.Message(arbitration_id=(demand.arbitration_id & ~0xFF) | 0x11, data=big, is_extended_id=True)
+    with pytest.raises(CanFrameError) as exc:  # another vessel's thruster 10: foreign, not "unknown"
+        n2k.decode(other)
+    assert exc.value.kind == "foreign", str(exc.value)
 
     class OtherController(Vessel):
         def step(self, **kw: object) -> None:

@@ -788,8 +788,12 @@ def _file_reference(problem: Any, base: FitResult) -> dict[str, float] | None:
     from seafmu.identification.maneuver.estimation import far_from_file
 
     plant = problem.plant
-    file = {n: float(plant["D_L" if n.startswith("D_L") else "D_Q"][int(n[4]), int(n[6])])
-            for n in base.params if n.startswith(("D_L[", "D_Q[")) and n[4] == n[6]}
+    def index(n: str) -> tuple[int, int]:  # D_L[i,j] -> (i, j)
+        i, j = n[4:-1].split(",")
+        return int(i), int(j)
+
+    file = {n: float(plant["D_L" if n.startswith("D_L") else "D_Q"][index(n)])
+            for n in base.params if n.startswith(("D_L[", "D_Q[")) and index(n)[0] == index(n)[1]}
     if not file or not far_from_file(plant, problem.prep.nu_raw, list(file),
                                      np.array([base.params[n] for n in file])):
         return None

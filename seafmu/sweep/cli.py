@@ -175,8 +175,10 @@ def _sweep(args: argparse.Namespace) -> int:
 
     study = load_study(study_path(args.study), validate=False)
     out = Path(args.out) if args.out else Path("results") / "sweeps" / study.name
-    if not args.dry_run:
-        check_output_folder(out)  # not a folder of the user's own files (its report.md would be replaced)
+    if not args.dry_run and out.resolve() != study.source.resolve().parent:
+        # not a folder of the user's own files (its report.md would be replaced); the study's own
+        # folder is meant for its results (a study file and its scenario beside them)
+        check_output_folder(out)
     _check_folder_study(out, study)
     if args.dry_run:
         validate_cases(study)

@@ -547,10 +547,11 @@ FAR_FROM_FILE = 20.0
 
 def far_from_file(plant: dict[str, np.ndarray], nu: np.ndarray, names: list[str], values: np.ndarray) -> bool:
     """Is any damping diagonal (``D_L[i,i]``, ``D_Q[i,i]`` in ``names``) more than
-    ``FAR_FROM_FILE`` times the vessel file's value away from it? Where the file has 0, the DOF's
-    other term at the log's rms speed is the measure (D_Q |nu| for a linear entry, D_L / |nu| for
-    a quadratic one), and a thousandth of the inertia per second at least: the DOFs' damping
-    differ by orders of magnitude (a supply vessel's yaw D_L is 5000 times its surge D_L)."""
+    ``FAR_FROM_FILE`` times the vessel file's value away from it? The measure is the file's value,
+    or where that is smaller (a 0 in the file) the DOF's other term at the log's rms speed (D_Q |nu|
+    for a linear entry, D_L / |nu| for a quadratic one), and a thousandth of the inertia per second
+    at least: the DOFs' damping differ by orders of magnitude (a supply vessel's yaw D_L is 5000
+    times its surge D_L), so no one scale serves all."""
     rms = np.maximum(np.sqrt(np.mean(nu**2, axis=0)), 1e-6)
     m = np.diag(plant["M"])
     for name, value in zip(names, values, strict=True):
