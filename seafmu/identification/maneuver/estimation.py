@@ -541,7 +541,8 @@ JAC_CHECK = 0.03
 # (``far_from_file``) has taken up something the file does not: the effect's fit also starts from
 # the file (``_effect_steps``). A DP log in a current has its yaw damping at 40 000 x the file's (a
 # supply vessel's surge at 240 x); two of the ten plant-made benchmark logs' baselines pass 20 x too
-# (benchmarks/bench_maneuver_pairs.py: the same answers; the three-effect log 4.8 -> 5.1 s).
+# (their roll D_L, ~110 x its floor; benchmarks/bench_maneuver_pairs.py: the same answers, the
+# three-effect log +3 %, 4.8 -> 5.0 s in a fresh process).
 FAR_FROM_FILE = 20.0
 
 
