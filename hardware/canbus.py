@@ -8,15 +8,16 @@ Two mappings, one interface (``ThrusterCodec``):
   4-bit alive counter rises by one per frame; a drive takes a frame whose counter did not advance
   as stale (``hardware/drive.py``), and latches a command timeout until an enable 0 -> 1 edge.
   The status's counter rises by one per frame too: the link takes a status whose counter did not
-  advance as a repeat, not as news (a hung drive repeating its last frame goes stale).
+  move forward as no news (a hung drive repeating its last frame goes stale).
 - ``nmea2000`` (``nmea2000_thrusters.dbc``): PGN 128006 Thruster Control Status (direction, power,
   speed in % of n_max) as the demand from seafmu's source address and as each thruster's reported
   state from its own; PGN 128008 Thruster Motor Status for fault bits. Limits: 1 % speed steps,
   no command-timeout fault bit; demands go out as broadcast 128006, not wrapped in PGN 126208
   Command Group Function (a fast-packet message), which some commercial thrusters require. The
   demand's SID is seafmu's alive counter (+1 per frame, mod 252); only the emulated drive checks it.
-  A thruster's 128006 with the SID of its previous one is a repeat to the link (SID 252-255, "not
-  available", is never one).
+  A thruster's 128006 whose SID did not move forward is not fresh to the link (SID 252-255, "not
+  available", is never checked); a 128006 or 128008 from neither seafmu's nor the drive's source
+  address is another device's ("foreign").
 
 Fault bits (``Feedback.faults``): 1 over-current, 2 over-temperature, 4 command timeout, 8 hardware.
 """
@@ -66,8 +67,8 @@ class Command:
 class Feedback:
     """A thruster's report as seafmu receives it (index 0-based); None: not in this frame.
     ``counter``: the drive's alive counter (None where the frame has none or says "not available"):
-    a status whose counter did not advance is a repeat of the last one, e.g. a hung drive whose CAN
-    controller keeps sending its last frame (the link does not take it as fresh)."""
+    a status whose counter did not move forward is no news, e.g. a hung drive whose CAN controller
+    keeps sending its last frame (the link does not take it as fresh: ``hardware/freshness.py``)."""
 
     index: int
     speed: float | None  # rev/s

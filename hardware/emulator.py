@@ -323,8 +323,7 @@ def _plant_params(scenario: str | None, sets: list[str], scenario_params: PlantP
                              "or `python -m seafmu.emulate`")
         params.update(scenario_params(scenario))
         own = params.pop("vessel_file", None)
-        theirs = load_vessel(own).name if own is not None and spec is not None else None
-        if theirs is not None and spec is not None and theirs != spec.name:
+        if own is not None and spec is not None and (theirs := load_vessel(own).name) != spec.name:
             raise ValueError(f"--scenario {scenario}: a scenario of vessel '{theirs}', not '{spec.name}'")
     for item in sets:
         key, _, value = item.partition("=")

@@ -8,15 +8,15 @@ FMU's variable names, so the observer, controller and allocator FMUs connect to 
   ``n_max``; NaN/inf become 0; the watchdog can force them to 0 (with enable off);
 - outputs ``meas_<channel>`` and ``<sensor>_count`` are decoded from NMEA 0183 sentences; a
   sensor's count rises by one when all the sentences of one sample have arrived (the observer
-  updates on a count change, exactly as with the Plant FMU; a GGA, RMC or PNORBT7 with the time of
-  the previous one of its kind is the same measurement again, dropped as ``repeated``, so a
-  receiver repeating its last fix does not pass for a live sensor); the first complete sample of every
+  updates on a count change, exactly as with the Plant FMU; a GGA, RMC or PNORBT7 whose time is not
+  later than the last one taken of its kind is an old measurement again, dropped as ``repeated``
+  (``hardware/freshness.py``), so a receiver repeating its last fix does not pass for a live
+  sensor); the first complete sample of every
   sensor is awaited in ``initialize`` and counts as sample 1, like the plant's initial sample;
 - ``n_1..m`` is the thrusters' measured shaft speed from their CAN status frames (NaN before the
   first, and while that thruster's status is stale: none for ``watchdog.timeout``; a status whose
-  alive counter did not advance is a repeat, not fresh: a hung drive repeating its last frame goes
-  stale); ``course`` and
-  ``sog`` exist when a mapped sentence (RMC, VTG) carries them.
+  alive counter did not move forward is not fresh, so a hung drive repeating its last frame goes
+  stale); ``course`` and ``sog`` exist when a mapped sentence (RMC, VTG) carries them.
 - link status: ``fault_i`` (the thruster's fault bits), ``watchdog_alarm`` (0/1),
   ``lines_dropped``, ``frames_dropped`` (bad input, running totals; physically implausible values
   included, ``hardware/plausibility.py``; command frames the adapter did not take), ``commands_limited``
@@ -79,7 +79,6 @@ from .canbus import FAULT_COMMAND_TIMEOUT, CanFrameError, Command, Feedback, Thr
 from .freshness import Freshness, counter_forward, time_forward
 from .nmea import (
     DAY,
-    DAY_CLOCK,
     EXTRA_CHANNELS,
     SENTENCES,
     NmeaCodec,
@@ -98,12 +97,12 @@ log = logging.getLogger("seafmu.hardware")
 THRUSTERS = "thrusters"  # watchdog source name of the CAN status frames
 LINE_CLASSES = (
     "checksum", "malformed", "invalid", "implausible", "line_too_long", "incomplete",
-    "repeated",  # a timed sentence (GGA, RMC, PNORBT7) with the time of the previous one of its kind
+    "repeated",  # a timed sentence (GGA, RMC, PNORBT7) whose time is not after the last one taken
 )
 FRAME_CLASSES = (
     "unknown_id", "wrong_dlc", "decode", "unexpected", "implausible_feedback", "bus_error", "tx_timeout",
     "tx_skipped",  # the rest of a command round after the adapter refused a frame
-    "status_repeated",  # a status whose alive counter did not advance (a hung drive repeating it)
+    "status_repeated",  # a status whose alive counter did not move forward (a hung drive repeating it)
 )
 LOG_FIRST = 5  # one-line log messages per drop class before they are only counted
 CLOSE_ROUNDS = 3  # zero + disable frames per thruster sent by close(), each with a fresh alive counter
@@ -734,7 +733,8 @@ class HardwareLink:
         if stamp is not None:
             clock = self._fix_clocks.get(name)
             if clock is None:
-                clock = self._fix_clocks[name] = Freshness(time_forward(DAY if name in DAY_CLOCK else None))
+                day = SENTENCES[name].clock == "day"  # a time of day wraps at midnight
+                clock = self._fix_clocks[name] = Freshness(time_forward(DAY if day else None))
             if not clock.news(stamp, now):  # a receiver repeating its last fix(es) is no new sample
                 self._drop("repeated", f"{name} with a time not after the last one taken ("
                            f"{text.split(',', 2)[1]}): an old measurement again, not a new sample")

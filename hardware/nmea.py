@@ -201,7 +201,9 @@ class Sentence:
     encode: Callable[[dict[str, float], datetime, Ctx], pynmea2.NMEASentence]
     decode: Callable[[pynmea2.NMEASentence, Ctx], dict[str, float]]
     extras: tuple[str, ...] = ()  # course/sog: link outputs, but no sensor channel
-    timed: bool = False  # its first field is the time of its measurement (see fix_time)
+    # its first field is the time of its measurement (see fix_time): "day" a UTC time of day
+    # (hhmmss.ss, wrapping at midnight), "unix" Unix time; "" none
+    clock: str = ""
 
 
 def _t(name: str, ctx: Ctx, default: str) -> str:
@@ -455,8 +457,8 @@ def _dec_vbw(m: pynmea2.NMEASentence, ctx: Ctx) -> dict[str, float]:
 SENTENCES: dict[str, Sentence] = {
     s.name: s
     for s in (
-        Sentence("GGA", ("north", "east"), "GP", False, _enc_gga, _dec_gga, timed=True),
-        Sentence("RMC", ("north", "east"), "GP", False, _enc_rmc, _dec_rmc, ("course", "sog"), True),
+        Sentence("GGA", ("north", "east"), "GP", False, _enc_gga, _dec_gga, clock="day"),
+        Sentence("RMC", ("north", "east"), "GP", False, _enc_rmc, _dec_rmc, ("course", "sog"), "day"),
         Sentence("VTG", (), "GP", False, _enc_vtg, _dec_vtg, ("course", "sog")),
         Sentence("HDT", ("yaw",), "HE", False, _enc_hdt, _dec_heading),
         Sentence("THS", ("yaw",), "HE", False, _enc_ths, _dec_heading),
@@ -479,7 +481,7 @@ SENTENCES: dict[str, Sentence] = {
             _dec_xdr,
         ),
         Sentence("ROT", ("r",), "HE", False, _enc_rot, _dec_rot),
-        Sentence("PNORBT7", ("u", "v", "w"), "", False, _enc_norbt7, _dec_norbt7, timed=True),
+        Sentence("PNORBT7", ("u", "v", "w"), "", False, _enc_norbt7, _dec_norbt7, clock="unix"),
         Sentence("VBW", ("u", "v"), "VD", False, _enc_vbw, _dec_vbw),
     )
 }
@@ -499,7 +501,6 @@ _BY_TYPE = {
     "VBW": "VBW",
 }
 
-DAY_CLOCK = ("GGA", "RMC")  # their time is a time of day (it wraps at midnight); PNORBT7's is Unix time
 DAY = 86400.0  # s
 _HHMMSS = re.compile(r"^([0-9]{2})([0-9]{2})([0-9]{2}(?:\.[0-9]+)?)$")
 
@@ -508,11 +509,12 @@ def fix_time(name: str, line: str) -> float | None:
     """The time of the measurement a sentence carries, s (GGA, RMC: of the UTC day, from hhmmss.ss;
     PNORBT7: Unix time); None for the others or an empty or unreadable field. A sentence whose
     time is not later than the last one's of its kind is no new measurement (``hardware/link.py``)."""
-    if not SENTENCES[name].timed:
+    clock = SENTENCES[name].clock
+    if not clock:
         return None
     parts = line.split(",", 2)
     field = parts[1] if len(parts) > 2 else ""
-    if name in DAY_CLOCK:
+    if clock == "day":
         m = _HHMMSS.match(field)
         return int(m[1]) * 3600.0 + int(m[2]) * 60.0 + float(m[3]) if m else None
     try:

@@ -785,15 +785,10 @@ def _file_reference(problem: Any, base: FitResult) -> dict[str, float] | None:
     from them (``maneuver.estimation.FAR_FROM_FILE``: a DP log in a current and with a lost
     thruster, yaw damping 40 000 x the file's): a pair screened only from the baseline stays in
     the basin its damping is in. None where the baseline is near the file (no second screen)."""
-    from seafmu.identification.maneuver.estimation import far_from_file
+    from seafmu.identification.maneuver.estimation import damping_diagonal, far_from_file
 
     plant = problem.plant
-    def index(n: str) -> tuple[int, int]:  # D_L[i,j] -> (i, j)
-        i, j = n[4:-1].split(",")
-        return int(i), int(j)
-
-    file = {n: float(plant["D_L" if n.startswith("D_L") else "D_Q"][index(n)])
-            for n in base.params if n.startswith(("D_L[", "D_Q[")) and index(n)[0] == index(n)[1]}
+    file = {n: float(plant[n[:3]][i, i]) for n in base.params if (i := damping_diagonal(n)) is not None}
     if not file or not far_from_file(plant, problem.prep.nu_raw, list(file),
                                      np.array([base.params[n] for n in file])):
         return None
