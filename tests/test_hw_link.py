@@ -24,6 +24,7 @@ from seafmu.hardware.profile import load_profile
 from seafmu.hardware.ptybridge import NullModem
 from seafmu.identification.trial import load_trial
 
+JITTER = 0.01  # s: poll-to-send processing and scheduling on a loaded 2-core machine
 VALUES = {
     "north": 1.5,
     "east": -2.25,
@@ -400,7 +401,11 @@ def test_watchdog_zeroes_thrusters_within_the_timeout_and_recovers(rig: tuple) -
                     zero_at = m.timestamp
         assert zero_at is not None and out(link, "watchdog_alarm") == 1.0
         reaction = zero_at - last
-        assert timeout - 2 * h - 0.01 < reaction <= timeout, reaction
+        # The link stamps a datum at its previous poll (before `last`) and trips at the first poll
+        # whose age could pass the timeout by the next one, so a loop on schedule zeroes within the
+        # timeout; JITTER covers the poll-to-send processing and a late wake-up on a loaded machine
+        # (a trip one step late, +50 ms, still fails).
+        assert timeout - 2 * h - 0.01 < reaction <= timeout + JITTER, reaction
         assert any("WATCHDOG ALARM" in ln for ln in link.log_lines)
         speeds = []
         for _ in range(12):  # data returns: the alarm clears, commands ramp back
