@@ -11,9 +11,16 @@ from pathlib import Path
 
 import pytest
 import yaml
+from hypothesis import settings
 
 from seafmu.build import build_all
 from seafmu.components.vessel_spec import VesselSpec, load_vessel
+
+# Property tests draw the same examples on every run (CI must not go red on a new random draw);
+# `pytest --hypothesis-profile=explore` draws new ones, as a search for cases worth pinning with @example.
+settings.register_profile("seafmu", derandomize=True, deadline=None, print_blob=True)
+settings.register_profile("explore", deadline=None, print_blob=True)
+settings.load_profile("seafmu")
 
 
 @pytest.fixture(scope="session", autouse=True)

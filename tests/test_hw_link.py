@@ -251,7 +251,7 @@ def test_malformed_input_is_counted_and_dropped_without_blocking(rig: tuple, tmp
         assert out(link, "lines_dropped") == len(bad_inputs)
         # good data kept flowing, and no step waited for anything
         assert out(link, "depth_count") == len(bad_inputs) + 2
-        assert max(durations) < h + 0.02
+        assert max(durations) < h + 0.05
         assert sum("dropped (" in ln for ln in link.log_lines) == len(bad_inputs) + 4
     finally:
         link.terminate()
@@ -357,7 +357,7 @@ def test_lost_serial_port_is_reopened_and_the_loop_never_stalls(rig: tuple) -> N
             link.do_step(t, h)
             steps.append(time.perf_counter() - t0)
             t += h
-        assert out(link, "port_losses") >= 1 and max(steps) < h + 0.02
+        assert out(link, "port_losses") >= 1 and max(steps) < h + 0.05
         nm2 = NullModem(link_b=link_path)  # plugged in again (same device name)
         try:
             vessel.ser = serial.serial_for_url(nm2.a, timeout=0)

@@ -75,7 +75,10 @@ class BlockedAdapter:
         os.set_blocking(self.master, False)
         self.slave_path = os.ttyname(slave)
         self._slave = slave
-        self.link = HardwareLink(_profile(self.nm.b, **{"can.channel": self.slave_path}), pace=False)
+        # no sensor data follows the first sample and the loop runs unpaced: a long watchdog keeps a
+        # loaded machine's slow steps from tripping it (these tests are about the adapter, not it)
+        overrides = {"can.channel": self.slave_path, "watchdog.timeout": 30.0}
+        self.link = HardwareLink(_profile(self.nm.b, **overrides), pace=False)
         self.link.open()
         self.ser.write(sample())
         self.link.initialize(np.zeros(7))
@@ -143,7 +146,7 @@ def test_a_blocked_adapter_costs_one_try_per_step_and_the_line_stays_clean(block
         link.do_step(t, h)
         took.append(time.perf_counter() - t0)
         t += h
-    assert max(took) < 0.02, took
+    assert max(took) < 0.03, took  # one 5 ms try per step; all seven would wait >= 35 ms
     assert link.counters["tx_timeout"] == 5 and link.counters["tx_skipped"] == 30
     assert out(link, "frames_dropped") == 35.0
     assert sum("the adapter is not taking frames" in ln for ln in link.log_lines) == 1
@@ -176,7 +179,7 @@ def test_frames_queued_behind_a_blocked_adapter_are_discarded_not_replayed(block
     assert written > 8000 and len(stale) < written / 2, (written, len(stale))
     assert stale.endswith(b"\r")  # the current round on a clean line
     tail = [_decode(link, ln) for ln in stale.split(b"\r")[-8:-1]]
-    assert [c.speed for c in tail] == [5.0] * 7
+    assert not link.alarm and [c.speed for c in tail] == [5.0] * 7
 
 
 # -- F3: one drive falls silent ---------------------------------------------------------------------

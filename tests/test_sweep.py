@@ -235,9 +235,12 @@ def test_study_on_an_existing_scheduler(tmp_path: Path, built_fmus: object) -> N
     worker = None
     try:
         deadline = time.monotonic() + 60
-        while not sched_file.is_file() and time.monotonic() < deadline and scheduler.poll() is None:
-            time.sleep(0.05)
-        address = json.loads(sched_file.read_text())["address"]
+        address = ""
+        while not address and time.monotonic() < deadline and scheduler.poll() is None:
+            try:  # the scheduler writes the file after creating it: it may be there but empty
+                address = json.loads(sched_file.read_text())["address"]
+            except (FileNotFoundError, json.JSONDecodeError):
+                time.sleep(0.05)
         assert address.startswith("tcp://127.0.0.1:"), address
         worker = subprocess.Popen([str(dask_cli), "worker", address, "--nworkers", "1", "--nthreads", "1",
                                    "--no-dashboard", "--host", "127.0.0.1",
