@@ -7,6 +7,7 @@ maneuver output-error fit is linear in the log length with MINPACK's results.
 from __future__ import annotations
 
 import math
+import re
 import subprocess
 import sys
 import time
@@ -457,12 +458,17 @@ def test_random_maneuver_tables_give_an_error_or_a_fit(tmp_path: Path, seed: int
         fit = identify_maneuver(load_maneuver_csv(path, vessel), vessel, method=method, max_nfev=10)
     except TrialError as exc:
         assert all(ln.startswith(str(path)) for ln in str(exc).splitlines())
-    else:  # a full fit: every surge term fitted, or (damping fitted negative) held at 0 and said
+    else:  # a full fit: every surge term fitted, or held (at 0: fitted negative; at the vessel file:
+        # the log cannot tell it, or barely moves surge) and said
+        at_file = any(re.match(r"damping of (\w, )*u\b.* held at (the vessel file|the start)", w)
+                      for w in fit.warnings)
         for key in ("D_L", "D_Q"):
-            held = any(f"{key}[0,0]" in w and "held at 0" in w for w in fit.warnings)
-            assert (f"{key}[0,0]" in fit.params) != held
-            if held:
+            at_0 = any(f"{key}[0,0]" in w and "held at 0" in w for w in fit.warnings)
+            assert (f"{key}[0,0]" in fit.params) != (at_0 or at_file)
+            if at_0:
                 assert fit.extras["matrices"][key][0][0] == 0.0
+            elif at_file:
+                assert fit.extras["matrices"][key][0][0] == getattr(vessel, f"{key}")[0, 0]
 
 
 # -- the output-error fit: MINPACK's iteration on the block structure, linear in the log length ------

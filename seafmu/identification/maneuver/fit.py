@@ -4,6 +4,7 @@ smoothing), optionally output error, and reports a ``FitResult``.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import math
 from dataclasses import dataclass
@@ -23,6 +24,7 @@ from seafmu.identification.maneuver.estimation import (
     _output_error_one,
     _run_ls,
 )
+from seafmu.identification.maneuver.estimation import untold_at_file as untold_at_file_context
 from seafmu.identification.maneuver.io import (
     SAMPLES_PER_REGRESSOR,
     ManeuverData,
@@ -181,9 +183,12 @@ def prepare_maneuver(data: ManeuverData, vessel: VesselSpec, validation_fraction
 
 def fit_prepared(problem: ManeuverProblem, method: str = "ls", *, oe_added_mass: bool = False,
                  oe_base: str = "vessel", max_nfev: int = 40, effect: str | CatalogueEffect | None = None,
-                 oe_start: dict[str, float] | None = None, noise_null: bool = True) -> FitResult:
+                 oe_start: dict[str, float] | None = None, noise_null: bool = True,
+                 untold_at_file: bool = False) -> FitResult:
     """One fit of a prepared log: LS itself, or output error (with an extension ``effect``, a
     name or an effect object) started from it; the simulation scores and the warnings.
+    ``untold_at_file``: the damping of DOFs the log cannot tell is held at the vessel file's where
+    the log does not reject it (``estimation.untold_at_file``; ``extras["held_at_file"]`` names it).
     ``noise_null=False``: the residual's whiteness against white noise only, its test against what
     the sensor noise alone leaves (199 simulations of the log) left for ``complete_whiteness``, which a
     diagnosis calls for its cause only, not for every candidate (it tripled a diagnosis's time)."""
@@ -200,9 +205,10 @@ def fit_prepared(problem: ManeuverProblem, method: str = "ls", *, oe_added_mass:
     nu_rms = np.sqrt(np.mean(prep.nu_raw[rows] ** 2, axis=0))
     extras: dict[str, Any] = dict(problem.extras)
 
-    M, D_L, D_Q, names, values, ci, corr, n_res, method_label = _estimate(
-        method, vessel, prep, fit_setup, ls, problem.plant, oe_added_mass, oe_base, max_nfev, warnings,
-        effect, oe_start, extras)
+    with untold_at_file_context() if untold_at_file else contextlib.nullcontext():
+        M, D_L, D_Q, names, values, ci, corr, n_res, method_label = _estimate(
+            method, vessel, prep, fit_setup, ls, problem.plant, oe_added_mass, oe_base, max_nfev, warnings,
+            effect, oe_start, extras)
     fitted = set(names)
 
     # simulation NRMSE (same for both methods)
