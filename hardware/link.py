@@ -11,7 +11,7 @@ FMU's variable names, so the observer, controller and allocator FMUs connect to 
   updates on a count change, exactly as with the Plant FMU; a GGA, RMC or PNORBT7 whose time is not
   later than the last one taken of its kind is an old measurement again, dropped as ``repeated``
   (``hardware/freshness.py``), so a receiver repeating its last fix does not pass for a live
-  sensor); the first complete sample of every
+  sensor, and so is an untimed sentence of its talker meanwhile); the first complete sample of every
   sensor is awaited in ``initialize`` and counts as sample 1, like the plant's initial sample;
 - ``n_1..m`` is the thrusters' measured shaft speed from their CAN status frames (NaN before the
   first, and while that thruster's status is stale: none for ``watchdog.timeout``; a status whose
@@ -97,7 +97,9 @@ log = logging.getLogger("seafmu.hardware")
 THRUSTERS = "thrusters"  # watchdog source name of the CAN status frames
 LINE_CLASSES = (
     "checksum", "malformed", "invalid", "implausible", "line_too_long", "incomplete",
-    "repeated",  # a timed sentence (GGA, RMC, PNORBT7) whose time is not after the last one taken
+    # a timed sentence (GGA, RMC, PNORBT7) whose time is not after the last one taken, and an untimed
+    # one of the same talker meanwhile (a VTG beside a repeating RMC)
+    "repeated",
 )
 FRAME_CLASSES = (
     "unknown_id", "wrong_dlc", "decode", "unexpected", "implausible_feedback", "bus_error", "tx_timeout",
@@ -262,6 +264,9 @@ class HardwareLink:
         }
         self._sentence_group = {sen: g for g in self.groups.values() for sen in g.sentences}
         self._fix_clocks: dict[str, Freshness[float]] = {}  # per timed sentence kind: its fix times
+        # talkers (GP, GN, ...) whose last timed sentence was an old fix again: their untimed ones
+        # (a VTG beside a repeating RMC) are of the same old epoch
+        self._frozen_talkers: set[str] = set()
         self.counters: Counter[str] = Counter()
         self._logged: Counter[str] = Counter()
         self.serial = SerialLines(
@@ -729,6 +734,13 @@ class HardwareLink:
             else:
                 self._drop(exc.kind, str(exc))
             return
+        g = self._sentence_group.get(name)
+        extras = [c for c in EXTRA_CHANNELS if c in values and c in self._slot]
+        if g is None and not extras:
+            self.counters["unmapped"] += 1  # valid and ours, but no sensor of this profile takes it
+            return
+        head = text.split(",", 1)[0].lstrip("$!")
+        talker = "" if head.startswith("P") else head[:2]  # a proprietary sentence has none
         stamp = fix_time(name, text)
         if stamp is not None:
             clock = self._fix_clocks.get(name)
@@ -736,15 +748,19 @@ class HardwareLink:
                 day = SENTENCES[name].clock == "day"  # a time of day wraps at midnight
                 clock = self._fix_clocks[name] = Freshness(time_forward(DAY if day else None))
             if not clock.news(stamp, now):  # a receiver repeating its last fix(es) is no new sample
+                if talker:
+                    self._frozen_talkers.add(talker)
                 self._drop("repeated", f"{name} with a time not after the last one taken ("
                            f"{text.split(',', 2)[1]}): an old measurement again, not a new sample")
                 return
-        for c in EXTRA_CHANNELS:
-            if c in values and c in self._slot:
-                self._y[self._slot[c]] = values[c]
-        g = self._sentence_group.get(name)
+            self._frozen_talkers.discard(talker)
+        elif talker in self._frozen_talkers:
+            self._drop("repeated", f"{name} from {talker}, whose last fix was an old one again: of the same "
+                       "old epoch, not a new sample")
+            return
+        for c in extras:
+            self._y[self._slot[c]] = values[c]
         if g is None:
-            self.counters["unmapped"] += 1
             return
         g.pending.update({c: v for c, v in values.items() if c in g.out_index})
         g.seen.add(name)

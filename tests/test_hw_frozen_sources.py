@@ -202,6 +202,48 @@ def test_a_receiver_repeating_its_last_fixes_is_not_a_new_sample(mode: str) -> N
     assert [r["depth_count"] for r in rows] == [2.0 + k for k in range(25)]  # the others unaffected
 
 
+class GpsWithVtg(Vessel):
+    """The far end with the GPS sending RMC + VTG (``usbl: [RMC, VTG]``) and a foreign sentence
+    (a GGA no sensor takes); ``gps="frozen"``: its RMC repeats, its VTG still says a new speed."""
+
+    def __init__(self, serial_path: str, channel: str, link: HardwareLink) -> None:
+        super().__init__(serial_path, channel, link)
+        self.rmcs: list[str] = []
+
+    def step(self, drives: dict[int, str] | None = None, gps: str | None = None,
+             position: tuple[float, float] = (1.5, -2.25)) -> None:
+        self.k += 1
+        t = T0 + timedelta(seconds=0.1 * self.k)
+        values = {**VALUES, "north": position[0], "east": position[1], "sog": 0.01 * self.k, "course": 0.5}
+        rmc = self._pick(self.rmcs, gps, NMEA.encode("RMC", values, t))
+        lines = [rmc, NMEA.encode("VTG", values, t), NMEA.encode("GGA", values, t)]
+        lines += [NMEA.encode(s, values, t) for name, ss in SENSORS.items() if name != "usbl" for s in ss]
+        self.ser.write("".join(ln + "\r\n" for ln in lines).encode())
+        for i in range(7):
+            for msg in self.link.codec.status(i, 1.0 + i, True, 0, self.k):
+                self.bus.send(msg)
+        while self.bus.recv(timeout=0) is not None:
+            pass
+
+
+def test_a_vtg_beside_a_repeating_rmc_is_of_the_same_old_epoch() -> None:
+    """RMC repeats from step 5 to 14: the VTG of its talker is dropped as `repeated` too, so sog holds
+    the last real value (not the frozen receiver's VTG); both are taken again with the fixes. A
+    sentence no sensor of the profile takes (the GGA here) is `unmapped`, never `repeated`."""
+    def schedule(k: int) -> dict:
+        return {"gps": "frozen" if 5 <= k < 15 else None}
+
+    sensors = {**{k: v for k, v in SENSORS.items() if k != "usbl"}, "usbl": ["RMC", "VTG"]}
+    link, rows = _run(25, schedule, far_end=GpsWithVtg, sensors=sensors)
+    sog = [r["sog"] for r in rows]
+    assert sog[:5] == pytest.approx([0.01 * (k + 2) for k in range(5)], abs=1e-4)
+    assert sog[5:15] == pytest.approx([0.06] * 10, abs=1e-4)  # the last real epoch's
+    assert sog[15:] == pytest.approx([0.01 * (k + 2) for k in range(15, 25)], abs=1e-4)
+    assert [r["usbl_count"] for r in rows][5:15] == [6.0] * 10
+    assert link.counters["repeated"] == 20 and link.counters["unmapped"] == 26
+    assert any("VTG from GP, whose last fix was an old one again" in ln for ln in link.log_lines)
+
+
 def test_drives_that_do_not_count_are_checked_for_silence_only() -> None:
     """``can.status_counter: false``: a drive sending one frame forever is not taken as hung."""
     frozen = {"drives": dict.fromkeys(range(7), "frozen")}
