@@ -39,6 +39,7 @@ import sys
 import threading
 from collections import Counter
 from collections.abc import Callable
+from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any
@@ -307,27 +308,37 @@ def _port(spec: str, bridges: list[NullModem], option: str = "--serial") -> tupl
     return spec, spec
 
 
-PlantParameters = Callable[[str], dict[str, Any]]
-"""Plant parameters by scenario name: given by the layer that reads scenarios (``seafmu.emulate``)."""
+@dataclass(frozen=True)
+class ScenarioReader:
+    """What the layer that reads scenarios (``seafmu.emulate``) lends the emulator, which never
+    imports it: a scenario's plant parameters by name (``--scenario``), and ``--set`` values read as
+    ``seafmu run --set`` reads them, units and ranges (vessel, items -> values)."""
+
+    plant_parameters: Callable[[str], dict[str, Any]]
+    set_values: Callable[[str, list[str]], dict[str, Any]]
 
 
-def _plant_params(scenario: str | None, sets: list[str], scenario_params: PlantParameters | None = None,
-                  efficiencies: list[str] | None = None, spec: VesselSpec | None = None) -> dict[str, Any]:
-    """The plant's parameters: the scenario's, then ``--set NAME=VALUE``, then
-    ``--thruster-efficiency I=FRACTION`` (a fouled or damaged thruster, 1-based I); the plant
-    checks names and ranges."""
+def _plant_params(scenario: str | None, sets: list[str], reader: ScenarioReader | None = None,
+                  efficiencies: list[str] | None = None, spec: VesselSpec | None = None,
+                  vessel: str | None = None) -> dict[str, Any]:
+    """The plant's parameters: the scenario's, then ``--set NAME=VALUE`` (with units where the
+    scenario reader is lent, else SI numbers), then ``--thruster-efficiency I=FRACTION`` (a fouled
+    or damaged thruster, 1-based I); the plant checks names and ranges."""
     params: dict[str, Any] = {}
     if scenario:
-        if scenario_params is None:
+        if reader is None:
             raise ValueError("--scenario needs seafmu's scenario reader: use `seafmu emulate` "
                              "or `python -m seafmu.emulate`")
-        params.update(scenario_params(scenario))
+        params.update(reader.plant_parameters(scenario))
         own = params.pop("vessel_file", None)
         if own is not None and spec is not None and (theirs := load_vessel(own).name) != spec.name:
             raise ValueError(f"--scenario {scenario}: a scenario of vessel '{theirs}', not '{spec.name}'")
-    for item in sets:
-        key, _, value = item.partition("=")
-        params[key.strip()] = _number("--set", item, value)
+    if reader is not None and vessel is not None:
+        params.update(reader.set_values(vessel, sets))
+    else:
+        for item in sets:
+            key, _, value = item.partition("=")
+            params[key.strip()] = _number("--set", item, value)
     for item in efficiencies or []:
         index, _, value = item.partition("=")
         count = spec.thrusters.count if spec is not None else None
@@ -443,7 +454,9 @@ def build_parser(p: argparse.ArgumentParser | None = None,
             "--scenario", type=_nonempty,
             help="take the plant parameters (seed, current, initial state) from this scenario",
         )
-    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="a plant parameter (SI)")
+    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                   help="a plant parameter, as `seafmu run --set plant.NAME=VALUE` takes it "
+                        "(e.g. current_speed=0.4kn; SI numbers when run without seafmu's scenario layer)")
     p.add_argument("--thruster-efficiency", action="append", default=[], metavar="I=FRACTION",
                    help="thruster I (from 1) delivers FRACTION of its nominal thrust (fouled or damaged, "
                    "0..1.5; the plant parameter thruster_efficiency_I), e.g. 3=0.6")
@@ -470,13 +483,14 @@ def build_parser(p: argparse.ArgumentParser | None = None,
     return p
 
 
-def main(argv: list[str] | None = None, scenario_params: PlantParameters | None = None) -> int:
-    """The command line; with ``scenario_params`` (``seafmu.emulate``) it takes ``--scenario``."""
-    args = build_parser(scenarios=scenario_params is not None).parse_args(argv)
-    return run_args(args, scenario_params)
+def main(argv: list[str] | None = None, reader: ScenarioReader | None = None) -> int:
+    """The command line; with ``reader`` (``seafmu.emulate``) it takes ``--scenario``, and units in
+    ``--set``."""
+    args = build_parser(scenarios=reader is not None).parse_args(argv)
+    return run_args(args, reader)
 
 
-def _checked(args: argparse.Namespace, iface: str, channel: str, scenario_params: PlantParameters | None
+def _checked(args: argparse.Namespace, iface: str, channel: str, reader: ScenarioReader | None
              ) -> tuple[HardwareProfile, dict[str, Any], list[Fault]]:
     """Every argument checked, nothing opened: the profile (its ports still the specs as given,
     ``pty:...``), the plant's parameters and the faults to inject. The vessel, the plant
@@ -519,8 +533,8 @@ def _checked(args: argparse.Namespace, iface: str, channel: str, scenario_params
     if args.command_timeout is not None:
         profile = profile.model_copy(update={"command_timeout": args.command_timeout})
     spec = load_vessel(profile.vessel)
-    params = _plant_params(getattr(args, "scenario", None), args.set, scenario_params,
-                           args.thruster_efficiency, spec)
+    params = _plant_params(getattr(args, "scenario", None), args.set, reader, args.thruster_efficiency, spec,
+                           profile.vessel)
     PlantBlock(spec, dict(params))
     sensor_mapping(profile, spec)
     make_thruster_codec(profile, spec)
@@ -529,7 +543,7 @@ def _checked(args: argparse.Namespace, iface: str, channel: str, scenario_params
     return profile, params, faults
 
 
-def run_args(args: argparse.Namespace, scenario_params: PlantParameters | None = None) -> int:
+def run_args(args: argparse.Namespace, reader: ScenarioReader | None = None) -> int:
     bridges: list[NullModem] = []
     emu: VesselEmulator | None = None
     try:
@@ -537,7 +551,7 @@ def run_args(args: argparse.Namespace, scenario_params: PlantParameters | None =
         if not channel:
             print("seafmu emulate: error: --can must be INTERFACE:CHANNEL", file=sys.stderr)
             return 2
-        profile, params, faults = _checked(args, iface, channel, scenario_params)
+        profile, params, faults = _checked(args, iface, channel, reader)
         ser_emu, ser_link = _port(args.serial, bridges, f"--serial {args.serial}")
         can_emu, can_link = (_port(channel, bridges, f"--can {args.can}") if iface == "slcan"
                              else (channel, channel))

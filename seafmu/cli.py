@@ -294,10 +294,11 @@ def _add_identification(sub: argparse._SubParsersAction) -> None:
 
 
 def _add_emulate(sub: argparse._SubParsersAction) -> None:
-    from seafmu.emulate import scenario_plant_parameters
+    from seafmu.emulate import plant_set_values, scenario_plant_parameters
     from seafmu.hardware.cli import register
+    from seafmu.hardware.emulator import ScenarioReader
 
-    register(sub, scenario_params=scenario_plant_parameters)
+    register(sub, reader=ScenarioReader(scenario_plant_parameters, plant_set_values))
 
 
 def _add_testplan(sub: argparse._SubParsersAction) -> None:

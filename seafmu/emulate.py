@@ -23,6 +23,31 @@ def scenario_plant_parameters(scenario: str) -> dict[str, Any]:
     return {"vessel_file": sc.vessel, **plant.parameters}  # the plant's own vessel file, if it names one
 
 
+def plant_set_values(vessel: str, sets: list[str]) -> dict[str, Any]:
+    """``--set NAME=VALUE`` for the emulator's plant, read as ``seafmu run --set plant.NAME=VALUE``
+    reads it: a quantity in any unit of the table (``current_speed=0.4kn``, ``current_direction=45deg``)
+    or a bare number in the parameter's SI unit, its name and range checked; a bad one is a one-line
+    ValueError naming the item."""
+    from seafmu.components.names import did_you_mean
+    from seafmu.scenario import ScenarioError, convert_parameter, interface_variables, parse_override
+
+    variables = {k: v for k, v in interface_variables(vessel, "plant").items() if v.causality == "parameter"}
+    out: dict[str, Any] = {}
+    for item in sets:
+        try:
+            o = parse_override(f"plant.{item.strip()}")
+            if o.time is not None:
+                raise ScenarioError(f"--set {item}: the emulator takes no timed values (NAME@TIME)")
+            info = variables.get(o.variable)
+            if info is None:
+                raise ScenarioError(f"--set {item}: no plant parameter '{o.variable}'"
+                                    f"{did_you_mean(o.variable, variables)}")
+            out[o.variable] = convert_parameter(o.value, info, f"--set {item}")
+        except ScenarioError as exc:
+            raise ValueError(str(exc).replace("--set plant.", "--set ", 1)) from None
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     """``seafmu emulate ...`` itself, so that a bad argument is the same one line (seafmu.cli)."""
     from seafmu.cli import main as cli_main

@@ -450,6 +450,16 @@ def _check_vessel_file(value: str, vessel: str, kind: str, path: Path, where: st
     return str(p)
 
 
+def convert_parameter(value: Any, info: VarInfo, where: str) -> Any:
+    """A parameter's value as a scenario file's is read (a quantity in its unit, its range, its
+    type); a bad one is a one-line ScenarioError ``{where}: ...``. For tools that set one parameter
+    outside a scenario (``seafmu emulate --set``)."""
+    try:
+        return _convert(value, info, Path("."), where)
+    except ScenarioError as exc:
+        raise ScenarioError(str(exc).split(": ", 1)[1]) from None
+
+
 def _convert(value: Any, info: VarInfo, path: Path, where: str) -> Any:
     if info.type == "string":
         if not isinstance(value, str):

@@ -9,6 +9,7 @@ import sys
 import threading
 from pathlib import Path
 
+import pytest
 import yaml
 from fmpy import extract, read_model_description
 from fmpy.fmi2 import FMU2Slave
@@ -181,6 +182,27 @@ def test_emulator_takes_the_whole_can_part_of_a_users_profile(tmp_path: Path) ->
     )
     assert other.returncode == 2 and len(other.stderr.strip().splitlines()) == 1, other.stderr
     assert other.stderr.startswith("seafmu emulate: error:") and "sensor" in other.stderr
+
+
+def test_emulator_set_takes_units_as_run_does() -> None:
+    """``seafmu emulate --set`` reads a plant parameter as ``seafmu run --set plant.NAME=VALUE`` does:
+    a quantity in its unit, a bare SI number, its type and range; a bad one is one line naming it."""
+    import math
+
+    from seafmu.emulate import plant_set_values, scenario_plant_parameters
+    from seafmu.hardware.emulator import ScenarioReader
+
+    reader = ScenarioReader(scenario_plant_parameters, plant_set_values)
+    params = _plant_params(None, ["current_speed=0.4kn", "current_direction=90 deg", "seed=3"], reader,
+                           vessel="minerva2")
+    assert params == {"current_speed": pytest.approx(0.4 * 1852 / 3600),
+                      "current_direction": pytest.approx(math.pi / 2), "seed": 3}
+    for item, why in (("current_speed=30kn", "is above the maximum 10"), ("curent_speed=1", "did you mean"),
+                      ("current_speed=2 deg", "current_speed=2 deg"), ("seed=1.5", "expected a whole number"),
+                      ("current_speed@3=1", "no timed values")):
+        with pytest.raises(ValueError, match=why) as exc:
+            _plant_params(None, [item], reader, vessel="minerva2")
+        assert "\n" not in str(exc.value) and str(exc.value).startswith(f"--set {item}")
 
 
 def test_emulator_carries_a_fouled_thruster() -> None:
