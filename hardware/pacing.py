@@ -41,6 +41,7 @@ class PacingStats:
     jitter_p99: float = 0.0
     jitter_max: float = 0.0
     overruns: int = 0
+    waited: float = 0.0  # the loop's time in the waits, s: not work (a step's own cost excludes it)
 
     def summary(self) -> str:
         w = self.window_factors
@@ -64,6 +65,7 @@ class PacingStats:
             "jitter_p99": self.jitter_p99,
             "jitter_max": self.jitter_max,
             "overruns": self.overruns,
+            "waited": self.waited,
         }
 
 
@@ -84,6 +86,7 @@ class Pacer:
         self._late: list[float] = []  # lateness of each wake-up
         self._wall: list[float] = []  # wall time of each wake-up, relative to t0
         self._sim: list[float] = []  # loop time each wake-up was due at
+        self.waited = 0.0  # s spent in the waits (sleep and spin)
 
     @staticmethod
     def elevate(priority: int) -> bool:
@@ -109,12 +112,14 @@ class Pacer:
             self.start(now=time.perf_counter() - t)
         target = self.t0 + t  # type: ignore[operator]
         perf = time.perf_counter
-        coarse = target - self.spin - perf()
+        entered = perf()
+        coarse = target - self.spin - entered
         if coarse > 0:
             time.sleep(coarse)
         now = perf()
         while now < target:
             now = perf()
+        self.waited += now - entered
         late = now - target
         self._late.append(late)
         self._wall.append(now - self.t0)  # type: ignore[operator]
@@ -129,7 +134,7 @@ class Pacer:
         late = np.asarray(self._late)
         n = len(late)
         if n < 2:
-            return PacingStats(n, self.step, 0.0, 0.0, float("nan"), self.window)
+            return PacingStats(n, self.step, 0.0, 0.0, float("nan"), self.window, waited=self.waited)
         wall = np.asarray(self._wall)
         sim = np.asarray(self._sim)
         wall_span = wall[-1] - wall[0]
@@ -153,4 +158,5 @@ class Pacer:
             jitter_p99=float(np.percentile(late, 99)),
             jitter_max=float(late.max()),
             overruns=int(np.count_nonzero(late > self.step)),
+            waited=self.waited,
         )

@@ -31,6 +31,8 @@ def test_pacer_holds_the_wall_clock_and_catches_up_after_a_late_step() -> None:
     assert s.overruns == sum(x > 0.01 for x in late) and s.overruns >= 2
     assert s.jitter_max == max(late) and s.jitter_p50 == pytest.approx(float(np.median(late)))
     assert "real-time factor" in s.summary() and s.as_dict()["overruns"] == s.overruns
+    # the waits are the loop's time but for its work (the late step's 35 ms): what a step's cost excludes
+    assert 1.85 < s.waited <= wall - 0.035 and s.as_dict()["waited"] == s.waited
 
 
 def test_pacer_rejects_a_bad_step() -> None:
