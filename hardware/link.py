@@ -108,6 +108,9 @@ FRAME_CLASSES = (
 )
 LOG_FIRST = 5  # one-line log messages per drop class before they are only counted
 CLOSE_ROUNDS = 3  # zero + disable frames per thruster sent by close(), each with a fresh alive counter
+# s: how long after an old fix again its talker's VTG is held to be of that old epoch (until its next
+# timed sentence): two epochs of a 1 Hz receiver, whose VTG may come at 10 Hz
+FROZEN_FIX_HOLD = 2.0
 FLUSH_EVERY = 1.0  # s: the raw logs (can.*, nmea.raw) are flushed this often (what a SIGKILL can lose)
 
 
@@ -264,9 +267,9 @@ class HardwareLink:
         }
         self._sentence_group = {sen: g for g in self.groups.values() for sen in g.sentences}
         self._fix_clocks: dict[str, Freshness[float]] = {}  # per timed sentence kind: its fix times
-        # talkers (GP, GN, ...) whose last timed sentence was an old fix again: their untimed ones
-        # (a VTG beside a repeating RMC) are of the same old epoch
-        self._frozen_talkers: set[str] = set()
+        # talkers (GP, GN, ...) whose last timed sentence was an old fix again, and when: the fix's
+        # own untimed velocity (a VTG beside a repeating RMC) is of the same old epoch
+        self._frozen_talkers: dict[str, float] = {}
         self.counters: Counter[str] = Counter()
         self._logged: Counter[str] = Counter()
         self.serial = SerialLines(
@@ -739,7 +742,7 @@ class HardwareLink:
         if g is None and not extras:
             self.counters["unmapped"] += 1  # valid and ours, but no sensor of this profile takes it
             return
-        head = text.split(",", 1)[0].lstrip("$!")
+        head = text.strip().split(",", 1)[0].lstrip("$!")
         talker = "" if head.startswith("P") else head[:2]  # a proprietary sentence has none
         stamp = fix_time(name, text)
         if stamp is not None:
@@ -749,12 +752,12 @@ class HardwareLink:
                 clock = self._fix_clocks[name] = Freshness(time_forward(DAY if day else None))
             if not clock.news(stamp, now):  # a receiver repeating its last fix(es) is no new sample
                 if talker:
-                    self._frozen_talkers.add(talker)
+                    self._frozen_talkers[talker] = now
                 self._drop("repeated", f"{name} with a time not after the last one taken ("
                            f"{text.split(',', 2)[1]}): an old measurement again, not a new sample")
                 return
-            self._frozen_talkers.discard(talker)
-        elif talker in self._frozen_talkers:
+            self._frozen_talkers.pop(talker, None)
+        elif self._of_frozen_fix(name, talker, now):
             self._drop("repeated", f"{name} from {talker}, whose last fix was an old one again: of the same "
                        "old epoch, not a new sample")
             return
@@ -779,6 +782,18 @@ class HardwareLink:
                 self._y[g.count_index] = float(g.samples)
             g.pending.clear()
             g.seen.clear()
+
+    def _of_frozen_fix(self, name: str, talker: str, now: float) -> bool:
+        """Is this untimed sentence the velocity of a fix that repeats? Only a sentence that carries
+        nothing but a fix's course and speed (VTG), of a talker whose last timed sentence was an old
+        fix again within the watchdog timeout: heading, depth or attitude of another device under
+        the same talker (a GNSS compass's $GPHDT, a multiplexer's $II) are never held to it, and a
+        receiver that stops sending timed sentences is held to its last one for ``FROZEN_FIX_HOLD``
+        only."""
+        marked = self._frozen_talkers.get(talker)
+        sentence = SENTENCES[name]
+        return (marked is not None and now - marked <= FROZEN_FIX_HOLD and not sentence.channels
+                and bool(sentence.extras))
 
     def _frame(self, msg: Any, now: float) -> None:
         try:

@@ -31,14 +31,19 @@ def plant_set_values(vessel: str, sets: list[str]) -> dict[str, Any]:
     from seafmu.components.names import did_you_mean
     from seafmu.scenario import ScenarioError, convert_parameter, interface_variables, parse_override
 
-    variables = {k: v for k, v in interface_variables(vessel, "plant").items() if v.causality == "parameter"}
+    variables = {k: v for k, v in interface_variables(vessel, "plant").items()
+                 if v.causality == "parameter" and k != "vessel_file"}  # the emulator's own vessel
     out: dict[str, Any] = {}
     for item in sets:
         try:
+            if "=" not in item or not item.split("=", 1)[0].strip():
+                raise ScenarioError(f"--set {item}: must read NAME=VALUE (e.g. current_speed=0.4kn)")
             o = parse_override(f"plant.{item.strip()}")
             if o.time is not None:
                 raise ScenarioError(f"--set {item}: the emulator takes no timed values (NAME@TIME)")
             info = variables.get(o.variable)
+            if o.variable == "vessel_file":
+                raise ScenarioError(f"--set {item}: the emulator's vessel is its VESSEL argument")
             if info is None:
                 raise ScenarioError(f"--set {item}: no plant parameter '{o.variable}'"
                                     f"{did_you_mean(o.variable, variables)}")

@@ -341,8 +341,9 @@ def load_scenario(name_or_path: str | Path | None = None, overrides: list[Overri
     return sc
 
 
-def _fail(path: Path, where: str, msg: str) -> ScenarioError:
-    return ScenarioError(f"{path}: {where}: {msg}")
+def _fail(path: Path | None, where: str, msg: str) -> ScenarioError:
+    """One line: the file (none for a value given outside one), the field, what is wrong."""
+    return ScenarioError(f"{path}: {where}: {msg}" if path is not None else f"{where}: {msg}")
 
 
 def _split(ref: str, path: Path, where: str) -> tuple[str, str]:
@@ -454,13 +455,10 @@ def convert_parameter(value: Any, info: VarInfo, where: str) -> Any:
     """A parameter's value as a scenario file's is read (a quantity in its unit, its range, its
     type); a bad one is a one-line ScenarioError ``{where}: ...``. For tools that set one parameter
     outside a scenario (``seafmu emulate --set``)."""
-    try:
-        return _convert(value, info, Path("."), where)
-    except ScenarioError as exc:
-        raise ScenarioError(str(exc).split(": ", 1)[1]) from None
+    return _convert(value, info, None, where)
 
 
-def _convert(value: Any, info: VarInfo, path: Path, where: str) -> Any:
+def _convert(value: Any, info: VarInfo, path: Path | None, where: str) -> Any:
     if info.type == "string":
         if not isinstance(value, str):
             raise _fail(path, where, f"expected text, got {value!r}")

@@ -8,8 +8,10 @@ NMEA through a pseudo-terminal pair, CAN through python-can's in-process virtual
 
 from __future__ import annotations
 
+import functools
 import itertools
 import math
+import operator
 from datetime import UTC, datetime, timedelta
 
 import can
@@ -216,8 +218,10 @@ class GpsWithVtg(Vessel):
         t = T0 + timedelta(seconds=0.1 * self.k)
         values = {**VALUES, "north": position[0], "east": position[1], "sog": 0.01 * self.k, "course": 0.5}
         rmc = self._pick(self.rmcs, gps, NMEA.encode("RMC", values, t))
-        lines = [rmc, NMEA.encode("VTG", values, t), NMEA.encode("GGA", values, t)]
+        vtg = NMEA.encode("VTG", values, t)
+        lines = [vtg, rmc, vtg, NMEA.encode("GGA", values, t)]  # VTG before and after: one epoch's
         lines += [NMEA.encode(s, values, t) for name, ss in SENSORS.items() if name != "usbl" for s in ss]
+        lines = [_talker(ln, "GP") if "HDT" in ln else ln for ln in lines]  # a GNSS compass's heading
         self.ser.write("".join(ln + "\r\n" for ln in lines).encode())
         for i in range(7):
             for msg in self.link.codec.status(i, 1.0 + i, True, 0, self.k):
@@ -226,10 +230,16 @@ class GpsWithVtg(Vessel):
             pass
 
 
+def _talker(line: str, talker: str) -> str:
+    body = talker + line[3 : line.index("*")]
+    return f"${body}*{functools.reduce(operator.xor, body.encode(), 0):02X}"
+
+
 def test_a_vtg_beside_a_repeating_rmc_is_of_the_same_old_epoch() -> None:
-    """RMC repeats from step 5 to 14: the VTG of its talker is dropped as `repeated` too, so sog holds
-    the last real value (not the frozen receiver's VTG); both are taken again with the fixes. A
-    sentence no sensor of the profile takes (the GGA here) is `unmapped`, never `repeated`."""
+    """RMC repeats from step 5 to 14: the VTG of its talker after it is dropped as `repeated` too,
+    so sog holds the last real value (not the frozen receiver's VTG); both are taken again with the
+    fixes. The heading of the same talker ($GPHDT, a GNSS compass) is not held to the fix: ahrs goes
+    on. A sentence no sensor of the profile takes (the GGA here) is `unmapped`, never `repeated`."""
     def schedule(k: int) -> dict:
         return {"gps": "frozen" if 5 <= k < 15 else None}
 
@@ -237,10 +247,13 @@ def test_a_vtg_beside_a_repeating_rmc_is_of_the_same_old_epoch() -> None:
     link, rows = _run(25, schedule, far_end=GpsWithVtg, sensors=sensors)
     sog = [r["sog"] for r in rows]
     assert sog[:5] == pytest.approx([0.01 * (k + 2) for k in range(5)], abs=1e-4)
-    assert sog[5:15] == pytest.approx([0.06] * 10, abs=1e-4)  # the last real epoch's
+    # the VTG ahead of the first old RMC passes (nothing tells its epoch yet); none after it
+    assert sog[5:15] == pytest.approx([0.07] * 10, abs=1e-4)
     assert sog[15:] == pytest.approx([0.01 * (k + 2) for k in range(15, 25)], abs=1e-4)
     assert [r["usbl_count"] for r in rows][5:15] == [6.0] * 10
-    assert link.counters["repeated"] == 20 and link.counters["unmapped"] == 26
+    assert [r["ahrs_count"] for r in rows] == [2.0 + k for k in range(25)]
+    # 10 RMCs; the VTGs after each and ahead of the next (the first fresh RMC's leading one too)
+    assert link.counters["repeated"] == 10 + 10 + 10 and link.counters["unmapped"] == 26
     assert any("VTG from GP, whose last fix was an old one again" in ln for ln in link.log_lines)
 
 

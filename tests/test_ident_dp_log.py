@@ -55,9 +55,13 @@ def test_a_dp_run_s_current_and_a_lost_thruster_are_named(tmp_path: Path, scenar
     # the model a user takes away predicts the held-out part (the heading step on Minerva 2): the
     # damping of a DOF the log cannot tell is the file's where the log does not reject it
     assert doc["gain"]["nrmse_validation_after"] < held_out, d.evidence
-    if scenario == "minerva2_dp" and not lost:
-        assert d.extended.extras["held_at_file"] == ["D_L[5,5]", "D_Q[5,5]"]
+    if scenario == "minerva2_dp" and not lost:  # yaw: the station keeping cannot tell its damping
+        assert d.cause.settled is d.extended and d.extended.extras["held_at_file"] == ["D_L[5,5]", "D_Q[5,5]"]
         assert any("damping of r held at the vessel file" in w for w in d.extended.warnings)
+        assert "keeps the vessel file's damping of r" in d.evidence
+        assert d.cause.fit.nrmse_validation > 2 * d.extended.nrmse_validation  # the free fit, judged
+    elif lost:  # the yaw D_L is significant here: nothing held
+        assert d.cause.settled is None
 
 
 def test_only_damping_the_log_cannot_tell_is_left_at_the_file_s() -> None:
@@ -75,3 +79,18 @@ def test_only_damping_the_log_cannot_tell_is_left_at_the_file_s() -> None:
           "D_L[0,0]": (-5.0, 9.0), "D_Q[0,0]": (-900.0, 900.0)}  # surge: untold
     names = list(ci)
     assert untold_dofs(names, ci, ["D_L[5,5]", "D_L[3,3]", "D_Q[3,3]"], plant) == [0, 5]
+
+
+def test_the_file_s_damping_is_kept_only_where_the_log_does_not_reject_it() -> None:
+    """The likelihood ratio per DOF: a held fit whose yaw residual grows 1 % on 5000 samples is
+    rejected (n ln 1.01 = 50 > 6.0), unless those residuals are so correlated that they count as
+    few (inflation 20: 2.5); a rise in a DOF with its own spread is not diluted by the others."""
+    from seafmu.identification.maneuver.estimation import file_not_rejected
+
+    free = {"dof_n": 5000, "dof_rss": [100.0, 1.0, 1e-4], "dof_inflation": [1.0, 1.0, 1.0]}
+    held = {"dof_rss": [100.0, 1.0, 1.01e-4]}
+    kept, stat = file_not_rejected(free, held, 2)
+    assert not kept and stat == pytest.approx(5000 * math.log(1.01))
+    kept, stat = file_not_rejected({**free, "dof_inflation": [1.0, 1.0, 20.0]}, held, 2)
+    assert kept and stat == pytest.approx(5000 * math.log(1.01) / 20)
+    assert file_not_rejected(free, {"dof_rss": [100.0, 1.0, 1e-4]}, 2) == (True, 0.0)

@@ -77,6 +77,9 @@ class Candidate:
     groups: tuple[tuple[str, ...], ...] = ()
     # whether each effect in ``effects`` has a significant parameter in this fit (``judge``)
     significant_each: tuple[bool, ...] = ()
+    # the cause's model fitted again with the damping the log cannot tell held at the vessel file's
+    # (``_settle``): the model a user takes away; ``fit`` is what every comparison and rule uses
+    settled: FitResult | None = None
 
     def __post_init__(self) -> None:
         if not self.effects:
@@ -157,7 +160,11 @@ class Diagnosis:
 
     @property
     def extended(self) -> FitResult:
-        return self.cause.fit if self.cause and self.cause.fit else self.baseline
+        """The model a user takes away: the cause's (settled where it was, ``_settle``), else the
+        baseline."""
+        if self.cause and self.cause.fit:
+            return self.cause.settled or self.cause.fit
+        return self.baseline
 
     @property
     def tested(self) -> bool:
@@ -183,7 +190,7 @@ class Diagnosis:
         located thrusters are two members of one effect)."""
         if not self.cause or self.cause.fit is None:
             return []
-        f, groups = self.cause.fit, self.cause.member_groups()
+        f, groups = self.extended, self.cause.member_groups()
         return [{"effect": self.cause.effects[i], "params": {k: float(f.params[k]) for k in groups[i]}}
                 for i in _member_order(self.cause, self.candidates)]
 
@@ -431,51 +438,45 @@ def _diagnose(trial: Trial, effects: list[str] | None, rule: Rule, combinations:
         cands += search_combinations(trial, base, cands, rule, t0)
     cause = choose(cands, rule)
     if cause is not None and trial.kind == "maneuver":
-        cause = _settled(trial, base, cause, cands, rule)
+        _settle(trial, cause)
     if cause is not None and cause.fit is not None:  # its residual tested as the baseline's was
         from seafmu.identification.maneuver.fit import complete_whiteness
 
-        complete_whiteness(cause.fit)
+        complete_whiteness(cause.settled or cause.fit)
     alts = alternatives(trial, cause, cands)
     evidence = explain(trial, base, cands, cause, skipped, alts)
     return Diagnosis(trial, base, cands, skipped, cause, evidence, rule, time.perf_counter() - t0, alts)
 
 
-def _settled(trial: Trial, base: FitResult, cause: Candidate, cands: list[Candidate],
-             rule: Rule) -> Candidate:
-    """The cause fitted again with the damping of the DOFs the log cannot tell held at the vessel
-    file's (``maneuver.estimation.untold_at_file``), judged again, and put in its place in ``cands``
-    if it still passes the rule. Only the cause: the candidates are compared as fitted (every one so
-    fitted made a diagnosis 25-50 % slower), and the cause is the model a user takes away. A DP log's
-    yaw damping, free, drifted where the log does not look: held-out NRMSE 1.09, the file's 0.22."""
+def _settle(trial: Trial, cause: Candidate) -> None:
+    """The cause's model fitted again with the damping of the DOFs the log cannot tell held at the
+    vessel file's (``maneuver.estimation.untold_at_file``), as ``cause.settled`` where the log does
+    not reject the file's values: the model a user takes away. The candidates are compared, and the
+    cause chosen, as fitted (so the baseline and every candidate are fitted alike; doing this in every
+    fit made a diagnosis 25-50 % slower). A DP log's yaw damping, free, drifted where the log does
+    not look: held-out NRMSE 1.09, settled 0.22."""
     from seafmu.identification.maneuver.estimation import untold_dofs
 
     fit = cause.fit
     problem = maneuver_problem(trial)
     if fit is None or not untold_dofs(fit.param_names, fit.ci95, fit.extras.get("held_at_bound", []),
                                       problem.plant):
-        return cause
-    m = problem.prep.thrust.shape[1] if problem.prep.thrust is not None else 0
-    obj = _effect_object(problem.vessel.dof, m, cause)
+        return
+    obj = _effect_object(problem, cause)
     if obj is None:
-        return cause
-    t1 = time.perf_counter()
+        return
     held = fit_maneuver(trial, "output_error", effect=obj, start=dict(fit.params), noise_null=False,
                         untold_at_file=True)
-    if not held.extras.get("held_at_file"):
-        return cause
-    new = judge(cause.effect, base, held, trial, rule, cause.seconds + time.perf_counter() - t1, cause.groups)
-    if not new.accepted:
-        return cause
-    new.flags = list(cause.flags)
-    cands[next(i for i, c in enumerate(cands) if c is cause)] = new
-    return new
+    if held.extras.get("held_at_file"):
+        cause.settled = held
 
 
-def _effect_object(d: int, m: int, c: Candidate) -> Any:
-    """The effect object a maneuver candidate was fitted with (``m`` thrust columns): each effect, a
-    located one as the variant its parameters name, combined where several; None if one is not a
-    maneuver effect."""
+def _effect_object(problem: Any, c: Candidate) -> Any:
+    """The effect object a maneuver candidate was fitted with: each effect, a located one as the
+    variant its parameters name, combined where several, in the physical form its fit kept (a
+    current's inertia); None if one is not a maneuver effect."""
+    d = problem.vessel.dof
+    m = problem.prep.thrust.shape[1] if problem.prep.thrust is not None else 0
     objs = []
     for e, group in c.members():
         obj = effect_objects.get(e)
@@ -487,7 +488,9 @@ def _effect_object(d: int, m: int, c: Candidate) -> Any:
             if obj is None:
                 return None
         objs.append(obj)
-    return objs[0] if len(objs) == 1 else Combined(objs, d)
+    eff = objs[0] if len(objs) == 1 else Combined(objs, d)
+    kept = c.fit.extras.get("effect_form") if c.fit is not None else None
+    return next((f for f in eff.maneuver_forms(problem.vessel) if f.maneuver_form() == kept), eff)
 
 
 def judge(name: str, base: FitResult, fit: FitResult, trial: Trial, rule: Rule,
@@ -1296,6 +1299,14 @@ def explain(trial: Trial, base: FitResult, cands: list[Candidate], cause: Candid
         text = (f"{len(order)} effects act together: {listed} (combined: held-out NRMSE "
                 f"{base.nrmse_validation:.3g} -> {cause.fit.nrmse_validation:.3g}, ratio {cause.ratio:.2f}, "
                 f"dAIC {cause.delta_aic:.1f}).")
+    if cause.settled is not None:
+        from seafmu.identification.maneuver.estimation import damping_diagonal
+
+        dofs = sorted({damping_diagonal(k) for k in cause.settled.extras.get("held_at_file", [])} - {None})
+        names = ", ".join(cause.settled.extras["nu_names"][i] for i in dofs)  # type: ignore[index]
+        text += (f" The model taken away keeps the vessel file's damping of {names}, which the log cannot "
+                 f"tell and does not reject (held-out NRMSE {cause.fit.nrmse_validation:.3g} -> "
+                 f"{cause.settled.nrmse_validation:.3g}).")
     others = (alts or [])[1:]
     likely = [a for a in others if a.weight >= 0.01]
     if alts and likely:

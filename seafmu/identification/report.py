@@ -402,7 +402,7 @@ def write_diagnosis_report(diag: Diagnosis, out: Path) -> Path:
     if diag.cause and diag.cause.fit:
         added = " + ".join(f"`{e}`: {CATALOGUE[e].meaning}" for e in dict.fromkeys(diag.effects))
         lines += [f"## 3. Extended model (baseline + {added})", ""]
-        lines += [*fit_table(diag.cause.fit, trial), ""]
+        lines += [*fit_table(diag.extended, trial), ""]
     lines += ["## Figures", ""] + [f"![{f.stem}]({f.name})" for f in figs] + [""]
     path = out / "diagnosis.md"
     path.write_text("\n".join(lines))
@@ -486,7 +486,7 @@ def summary_lines(obj: Identification | Diagnosis) -> list[str]:
         if a.experiment:
             lines.append(f"    to tell them apart: {a.experiment['text']}")
     if d.cause and d.cause.fit:
-        e = d.cause.fit
+        e = d.extended
         lines.append(f"  extended: {params(e)}; held-out NRMSE {_g(e.nrmse_validation)}, AIC {_g(e.aic, 6)}")
     if d.skipped:  # what "none" did not cover, on the console too (not only in diagnosis.md)
         lines.append(f"  not tried, not applicable to this trial (why: diagnosis.md): {', '.join(d.skipped)}")

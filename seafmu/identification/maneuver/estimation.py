@@ -8,6 +8,7 @@ import contextlib
 import copy
 import dataclasses
 import hashlib
+import math
 from collections.abc import Callable, Iterator
 from contextlib import AbstractContextManager
 from contextvars import ContextVar
@@ -931,17 +932,33 @@ def untold_dofs(names: list[str], ci: dict[str, tuple[float, float]], held_at_bo
     return sorted(i for i, told in by_dof.items() if told and all(told))
 
 
+def _untold_limit(k: int) -> float:
+    from scipy import stats
+
+    return float(stats.chi2.ppf(UNTOLD_LEVEL, k))
+
+
+def file_not_rejected(free: dict[str, Any], held: dict[str, Any], k: int) -> tuple[bool, float]:
+    """Does the log not reject holding ``k`` damping entries at the file's? The likelihood ratio of
+    the held fit against the free one, each DOF with its own noise variance (the residuals are
+    scaled by each DOF's motion, not its noise): sum_j n ln(RSS_held,j / RSS_free,j), each term
+    divided by the free fit's autocorrelation inflation in that DOF (correlated residuals count as
+    fewer samples), below chi^2(``UNTOLD_LEVEL``, k). Also the statistic."""
+    n = free["dof_n"]
+    terms = [n * math.log(max(h, 1e-300) / max(f, 1e-300)) / max(i, 1.0)
+             for f, h, i in zip(free["dof_rss"], held["dof_rss"], free["dof_inflation"], strict=True)]
+    stat = float(sum(terms))
+    return stat < _untold_limit(k), stat
+
+
 def _file_where_untold(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | None, ls: _LSResult,
                        plant: dict[str, np.ndarray], added_mass: bool, base: str, max_nfev: int,
                        said: list[str], eff: CatalogueEffect | None, start: dict[str, float] | None,
                        out: tuple) -> tuple[tuple, list[str]]:
     """The fit again with the damping of the DOFs the log cannot tell (``untold_dofs``) held at the
-    vessel file's, kept if the log does not reject those values (likelihood ratio, ``UNTOLD_LEVEL``,
-    with the residuals' autocorrelation inflation). A free value there drifts where the log does not
-    look: a DP log's yaw damping, fitted to station keeping, missed the held-out heading step (NRMSE
-    1.09, against 0.21 with the file's yaw damping)."""
-    from scipy import stats
-
+    vessel file's, kept if the log does not reject those values (``file_not_rejected``). A free value
+    there drifts where the log does not look: a DP log's yaw damping, fitted to station keeping,
+    missed the held-out heading step (NRMSE 1.09, against 0.22 with the file's yaw damping)."""
     names, ci, info = out[3], out[6], out[9]
     dofs = untold_dofs(names, ci, info["held_at_bound"], plant)
     if not dofs:
@@ -951,14 +968,13 @@ def _file_where_untold(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | N
     warm = {**(start or {}), **dict(zip(names, np.asarray(out[4], dtype=float).tolist(), strict=True))}
     held = _output_error_held(vessel, prep, setup, ls, plant, added_mass, base, max_nfev, said_held, eff,
                               warm, hold)  # from the free fit and its segment states
-    n, infl = out[8], max(float(info["ci_inflation"]), 1.0)
-    cost, cost_held = info["oe_cost"], held[9]["oe_cost"]
-    stat = n * np.log(max(cost_held, 1e-300) / max(cost, 1e-300)) / infl
-    if not stat < stats.chi2.ppf(UNTOLD_LEVEL, len(hold)):
+    kept, stat = file_not_rejected(info, held[9], len(hold))
+    if not kept:
         return out, said
     said_held.append(f"damping of {', '.join(NU_NAMES[vessel.dof][i] for i in dofs)} held at the vessel "
                     f"file: the log cannot tell it (95 % intervals hold 0 and the file's values) and "
-                    f"does not reject the file's (likelihood ratio {stat:.1f})")
+                    f"does not reject the file's (likelihood-ratio statistic {stat:.1f}, limit "
+                    f"{_untold_limit(len(hold)):.1f}, each DOF's residual autocorrelation counted)")
     held[9]["held_at_file"] = sorted(hold)
     return held, said_held
 
@@ -1238,5 +1254,9 @@ def _output_error_held(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | N
             "oe_start": dict(zip(names_all, p0.tolist(), strict=True)), "ci_inflation": infl,
             "oe_status": sol.message, "effect": None if eff is None else eff.name,
             "effect_terms": {k: v[0] for k, v in terms(p_all[None]).items()},
-            "held_at_bound": list(held_now)}
+            "held_at_bound": list(held_now),
+            # per DOF: the residuals' sum of squares, count and autocorrelation inflation (the
+            # likelihood ratio of a hold, ``file_not_rejected``: each DOF its own noise variance)
+            "dof_rss": np.sum(r.reshape(-1, d) ** 2, axis=0).tolist(), "dof_n": int(r.size // d),
+            "dof_inflation": [_autocorr_inflation(r.reshape(-1, d)[:, j]) for j in range(d)]}
     return M, DL, DQ, names, p, cov, ci, corr, r.size, info
