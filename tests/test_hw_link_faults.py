@@ -179,7 +179,7 @@ def test_frames_queued_behind_a_blocked_adapter_are_discarded_not_replayed(block
     assert written > 8000 and len(stale) < written / 2, (written, len(stale))
     assert stale.endswith(b"\r")  # the current round on a clean line
     tail = [_decode(link, ln) for ln in stale.split(b"\r")[-8:-1]]
-    assert not link.alarm and [c.speed for c in tail] == [5.0] * 7
+    assert [c.speed for c in tail] == [5.0] * 7
 
 
 # -- F3: one drive falls silent ---------------------------------------------------------------------

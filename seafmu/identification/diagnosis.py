@@ -450,7 +450,7 @@ def _diagnose(trial: Trial, effects: list[str] | None, rule: Rule, combinations:
 
 def _settle(trial: Trial, cause: Candidate) -> None:
     """The cause's model fitted again with the damping of the DOFs the log cannot tell held at the
-    vessel file's (``maneuver.estimation.untold_at_file``), as ``cause.settled`` where the log does
+    vessel file's (``maneuver.estimation.holding_untold_damping``), as ``cause.settled`` where the log does
     not reject the file's values: the model a user takes away. The candidates are compared, and the
     cause chosen, as fitted (so the baseline and every candidate are fitted alike; doing this in every
     fit made a diagnosis 25-50 % slower). A DP log's yaw damping, free, drifted where the log does

@@ -897,14 +897,15 @@ def _output_error_form(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | N
 # A likelihood-ratio test at this level decides whether the log rejects the vessel file's damping of
 # the DOFs it cannot tell (``_file_where_untold``).
 UNTOLD_LEVEL = 0.95
-# Whether the fits in this context hold such damping at the file's (``untold_at_file``): a context, not
-# a parameter, as it is asked for at the top (an identification, a diagnosis's cause) and acts five
-# calls down, in each output-error fit. Every candidate of a diagnosis fitted so made it 25-50 % slower.
+# Whether the fits in this context hold such damping at the file's (``holding_untold_damping``): a
+# context, not a parameter, as it is asked for at the top (an identification, a diagnosis's cause) and
+# acts five calls down, in each output-error fit. Every candidate of a diagnosis fitted so made it
+# 25-50 % slower.
 _UNTOLD_AT_FILE: ContextVar[bool] = ContextVar("untold_at_file", default=False)
 
 
 @contextlib.contextmanager
-def untold_at_file() -> Iterator[None]:
+def holding_untold_damping() -> Iterator[None]:
     """The output-error fits inside hold the damping of the DOFs the log cannot tell at the vessel
     file's, where the log does not reject it (``_file_where_untold``)."""
     token = _UNTOLD_AT_FILE.set(True)

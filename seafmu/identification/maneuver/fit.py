@@ -23,8 +23,8 @@ from seafmu.identification.maneuver.estimation import (
     _output_error,
     _output_error_one,
     _run_ls,
+    holding_untold_damping,
 )
-from seafmu.identification.maneuver.estimation import untold_at_file as untold_at_file_context
 from seafmu.identification.maneuver.io import (
     SAMPLES_PER_REGRESSOR,
     ManeuverData,
@@ -188,7 +188,7 @@ def fit_prepared(problem: ManeuverProblem, method: str = "ls", *, oe_added_mass:
     """One fit of a prepared log: LS itself, or output error (with an extension ``effect``, a
     name or an effect object) started from it; the simulation scores and the warnings.
     ``untold_at_file``: the damping of DOFs the log cannot tell is held at the vessel file's where
-    the log does not reject it (``estimation.untold_at_file``; ``extras["held_at_file"]`` names it).
+    the log does not reject it (``estimation.holding_untold_damping``; ``extras["held_at_file"]`` names it).
     ``noise_null=False``: the residual's whiteness against white noise only, its test against what
     the sensor noise alone leaves (199 simulations of the log) left for ``complete_whiteness``, which a
     diagnosis calls for its cause only, not for every candidate (it tripled a diagnosis's time)."""
@@ -205,7 +205,7 @@ def fit_prepared(problem: ManeuverProblem, method: str = "ls", *, oe_added_mass:
     nu_rms = np.sqrt(np.mean(prep.nu_raw[rows] ** 2, axis=0))
     extras: dict[str, Any] = dict(problem.extras)
 
-    with untold_at_file_context() if untold_at_file else contextlib.nullcontext():
+    with holding_untold_damping() if untold_at_file else contextlib.nullcontext():
         M, D_L, D_Q, names, values, ci, corr, n_res, method_label = _estimate(
             method, vessel, prep, fit_setup, ls, problem.plant, oe_added_mass, oe_base, max_nfev, warnings,
             effect, oe_start, extras)
