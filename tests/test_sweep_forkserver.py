@@ -376,3 +376,23 @@ def test_a_case_whose_worker_process_dies_is_recorded_and_the_study_goes_on(tmp_
     for r in rows:
         assert r["status"] == "error" and r["error"].startswith("the worker running this case failed (")
         assert "\n" not in r["error"]
+
+
+def test_a_sweep_run_beside_a_seafmu_clone_imports_the_installed_seafmu(tmp_path: Path,
+                                                                        built_fmus: object) -> None:
+    """Run from the folder that holds a clone (a `seafmu` folder with no __init__.py at its top, and
+    a results/ folder from an earlier run): the fork server, a `python -c`, put the current folder
+    first on its import path, `seafmu` became that folder as a namespace package and every case
+    failed (ImportError: cannot import name 'evaluate_checks' from 'seafmu.results')."""
+    import pandas as pd
+
+    _base(tmp_path)
+    (tmp_path / "seafmu" / "results" / "minerva2_dp").mkdir(parents=True)
+    (tmp_path / "study.yaml").write_text("name: s\nscenario: base.yaml\nseeds: 2\n")
+    seafmu = Path(sys.executable).with_name("seafmu")  # the console script, as a user runs it
+    proc = subprocess.run([str(seafmu), "sweep", "study.yaml", "--workers", "2", "--out", "out", "-q"],
+                          cwd=tmp_path, capture_output=True, text=True, timeout=300,
+                          env={**os.environ, "SEAFMU_FMU_CACHE": str(tmp_path / "cache")})
+    assert proc.returncode in (0, 1), proc.stderr
+    cases = pd.read_parquet(tmp_path / "out" / "cases.parquet")
+    assert len(cases) == 2 and set(cases["status"]) <= {"pass", "fail"}, cases["error"].tolist()

@@ -92,7 +92,10 @@ def start(warmup: Path | None) -> None:
     import multiprocessing.forkserver
 
     multiprocessing.get_context(METHOD).set_forkserver_preload(PRELOAD)
-    with _environ({**WORKER_ENVIRON, SERVER_ENV: str(warmup or "")}), sigint_ignored():
+    # PYTHONSAFEPATH: the server is `python -c ...`, which would put the current folder first on its
+    # import path; run from the folder that holds a seafmu clone, `seafmu` there (no __init__.py at the
+    # clone's top) became a namespace package ahead of the installed one, and every case failed
+    with _environ({**WORKER_ENVIRON, SERVER_ENV: str(warmup or ""), "PYTHONSAFEPATH": "1"}), sigint_ignored():
         multiprocessing.forkserver.ensure_running()
     import dask.config  # after the server started: it warms up meanwhile
     import distributed.utils
