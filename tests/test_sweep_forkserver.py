@@ -354,28 +354,36 @@ import dier
 import seafmu.sweep.execute as ex
 from seafmu.sweep.study import load_study, validate_cases
 
-ex.run_case = dier.run_case  # pickled by reference: the worker imports dier (the server's sys.path has '')
+real = ex.run_case
+ex.run_case = dier.run_case  # pickled by reference: the worker imports dier (on PYTHONPATH)
 study = load_study("study.yaml", validate=False)
 validate_cases(study)
 with ex.StudyFolder(Path("out")) as folder:
     out = ex.run_study(study, folder, workers=1, progress=False)
     out.close()
-print(json.dumps(list(out.rows.values())))
+ex.run_case = real  # the study again into its folder: the cases its worker could not run, run now
+with ex.StudyFolder(Path("out")) as folder:
+    again = ex.run_study(study, folder, workers=1, progress=False)
+    again.close()
+statuses = sorted(r["status"] for r in again.rows.values())
+print(json.dumps([list(out.rows.values()), [again.skipped, again.ran, statuses]]))
 """
 
 
 def test_a_case_whose_worker_process_dies_is_recorded_and_the_study_goes_on(tmp_path: Path,
                                                                          built_fmus: object) -> None:
     """A worker process that dies mid-case (here it exits at once) never stops the study: once Dask
-    gives up on the case, it is a row with status error and the one-line reason."""
+    gives up on the case, it is a row with status error and the one-line reason. Not the case's own
+    outcome: a rerun of the study into its folder runs those cases again (not skipped as finished)."""
     _base(tmp_path)
     (tmp_path / "study.yaml").write_text("name: s\nscenario: base.yaml\nseeds: 2\n")
-    rows = json.loads(_python(WORKER_DIES, tmp_path, {"DASK_DISTRIBUTED__SCHEDULER__ALLOWED_FAILURES": "0"})
-                      .strip().splitlines()[-1])
+    env = {"DASK_DISTRIBUTED__SCHEDULER__ALLOWED_FAILURES": "0", "PYTHONPATH": str(tmp_path)}
+    rows, (skipped, ran, statuses) = json.loads(_python(WORKER_DIES, tmp_path, env).strip().splitlines()[-1])
     assert len(rows) == 2
     for r in rows:
         assert r["status"] == "error" and r["error"].startswith("the worker running this case failed (")
         assert "\n" not in r["error"]
+    assert (skipped, ran) == (0, 2) and set(statuses) <= {"pass", "fail"}
 
 
 def test_a_sweep_run_beside_a_seafmu_clone_imports_the_installed_seafmu(tmp_path: Path,

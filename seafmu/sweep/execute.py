@@ -7,7 +7,8 @@
   workers need seafmu installed, the FMUs built and the scenario files at the same paths.
 - Study folder: ``cases/<key>.json`` is written (atomically) as each case finishes, named by the
   case's key (a hash of the base scenario, its overrides, seed and what is computed): a rerun of
-  the same study into the same folder skips every case whose row is there with the same key, so
+  the same study into the same folder skips every case whose row is there with the same key (a case
+  its worker could not run is run again), so
   nothing is lost and nothing done twice; a changed study reruns only the cases it changed.
   ``cases.parquet`` is made from the rows at the end (also after an interruption). The folder is
   locked (flock) while a study runs in it.
@@ -99,7 +100,7 @@ class StudyFolder:
                 row = json.loads(p.read_text(encoding="utf-8"))
             except (OSError, ValueError):
                 continue
-            if isinstance(row, dict) and row.get("key") == c.key:
+            if isinstance(row, dict) and row.get("key") == c.key and not _worker_failed(row):
                 done[c.index] = {**row, "case": c.index}
         return done
 
@@ -271,11 +272,20 @@ def _retire_idle(client: Any, cluster: Any, retired: set[str], left: int) -> Non
     threading.Thread(target=retire, name="seafmu-sweep-retire", daemon=True).start()
 
 
+WORKER_FAILED = "the worker running this case failed"
+
+
 def _error_row(c: Case, exc: BaseException) -> dict[str, Any]:
     """The row of a case whose task failed outside ``run_case`` (its worker process died)."""
     return {"case": c.index, "key": c.key, "seed": c.seed, **c.inputs, "status": "error",
-            "error": f"the worker running this case failed ({type(exc).__name__}: "
-                     f"{' '.join(str(exc).split())[:300]})", "wall_time_s": float("nan")}
+            "error": f"{WORKER_FAILED} ({type(exc).__name__}: {' '.join(str(exc).split())[:300]})",
+            "wall_time_s": float("nan")}
+
+
+def _worker_failed(row: dict[str, Any]) -> bool:
+    """A row of a case its worker could not run (the process died, the machine ran out of memory):
+    not the case's own outcome, so a rerun of the study runs it again."""
+    return row.get("status") == "error" and str(row.get("error", "")).startswith(WORKER_FAILED)
 
 
 def _closer(client: Any, cluster: Any) -> Callable[[], None]:
