@@ -62,6 +62,10 @@ def test_a_dp_run_s_current_and_a_lost_thruster_are_named(tmp_path: Path, scenar
         assert d.cause.fit.nrmse_validation > 2 * d.extended.nrmse_validation  # the free fit, judged
     elif lost:  # the yaw D_L is significant here: nothing held
         assert d.cause.settled is None
+        from seafmu.identification.report import write_diagnosis_report
+
+        md = write_diagnosis_report(d, tmp_path / "report").read_text()
+        assert f"**Cause: `{d.effects[0]}` + `{d.effects[1]}`**" in md  # both effects, not only the main one
 
 
 def test_only_damping_the_log_cannot_tell_is_left_at_the_file_s() -> None:

@@ -188,3 +188,18 @@ def test_maneuver_write_back_never_writes_energy_injecting_damping(tmp_path: Pat
     assert path is None and msg.startswith("write-back refused") and not (tmp_path / "w.yaml").exists()
     with pytest.raises(ValueError, match="diverges when simulated"):  # the API refuses it too
         updates_from_fit(_maneuver_fit(5.0, warn), load_vessel("minerva2"))
+
+
+def test_a_written_file_that_replays_worse_says_so_and_why() -> None:
+    """A write-back whose replay is worse than the file it started from is a warning naming what the
+    fit holds beside the file's matrices (not written: an effect's parameters)."""
+    from types import SimpleNamespace
+
+    from seafmu.identification.cli import _worse_note
+
+    params = {"D_L[5,5]": 21.7, "D_Q[1,1]": 941.0, "v_c_north": 0.0707, "eta_T[3]": 0.604}
+    fit = SimpleNamespace(params=params)
+    note = _worse_note(fit, SimpleNamespace(ratio=0.888))  # type: ignore[arg-type]
+    assert note.startswith("warning: the written file replays this trial worse") and "0.888x" in note
+    assert "v_c_north = 0.0707, eta_T[3] = 0.604" in note and "D_L" not in note
+    assert "\n" not in note

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import re
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -273,10 +274,25 @@ def close_loop(trial: Trial, fit: FitResult, out_path: Path, method: str,
     if isinstance(rep, Replay):
         doc["replay"] = rep.to_json()
         lines.append(rep.line(f"'{old}'", str(path)))
+        if rep.ratio < 1.0:
+            lines.append(_worse_note(fit, rep))
     else:
         doc["replay"] = {"skipped": rep}
         lines.append(rep if rep.startswith("replay failed") else f"replay skipped: {rep}")
     return {"json": doc, "lines": lines}
+
+
+def _worse_note(fit: FitResult, rep: Any) -> str:
+    """Why a written file can replay worse: what the fit holds beside the file's matrices (an
+    effect's parameters: a lost thruster's efficiency, a current) is no vessel-file property and is
+    not written, and the damping fitted beside it does not stand alone."""
+    other = [f"{k} = {v:.4g}" for k, v in fit.params.items() if not re.match(r"^(D_L|D_Q|M|M_A)\[", k)]
+    why = (f"; the fit's other parameters ({', '.join(other[:4])}{', ...' if len(other) > 4 else ''}) are "
+           "no vessel-file properties and were not written, and the damping fitted beside them does not "
+           "stand alone (a scenario sets them: e.g. plant.thruster_efficiency_i, plant.current_speed)"
+           if other else "")
+    return (f"warning: the written file replays this trial worse than the one it started from (gain "
+            f"{rep.ratio:.3g}x){why}")
 
 
 def main(argv: list[str] | None = None) -> int:

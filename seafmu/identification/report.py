@@ -358,7 +358,8 @@ def write_diagnosis_report(diag: Diagnosis, out: Path) -> Path:
         lines += ["- the diagnosis baseline is the output-error fit: the extensions are output-error fits, "
                   "and an LS baseline would credit the method, not the effect", ""]
     j = diag.to_json()
-    lines += ["## Answer", "", f"**Cause: `{effect}`** — {diag.evidence}", ""]
+    named = " + ".join(f"`{e}`" for e in diag.effects) or f"`{effect}`"  # every effect of the cause
+    lines += ["## Answer", "", f"**Cause: {named}** — {diag.evidence}", ""]
     if diag.cause:
         g = j["gain"]
         lines += [f"Gain: held-out NRMSE {_g(g['nrmse_validation_before'])} → "
