@@ -58,7 +58,7 @@ def test_a_dp_run_s_current_and_a_lost_thruster_are_named(tmp_path: Path, scenar
     if scenario == "minerva2_dp" and not lost:  # yaw: the station keeping cannot tell its damping
         assert d.cause.settled is d.extended and d.extended.extras["held_at_file"] == ["D_L[5,5]", "D_Q[5,5]"]
         assert any("damping of r held at the vessel file" in w for w in d.extended.warnings)
-        assert "keeps the vessel file's damping of r" in d.evidence
+        assert "handed over keeps the vessel file's damping of r" in d.evidence
         assert d.cause.fit.nrmse_validation > 2 * d.extended.nrmse_validation  # the free fit, judged
     elif lost:  # the yaw D_L is significant here: nothing held
         assert d.cause.settled is None

@@ -1304,9 +1304,9 @@ def explain(trial: Trial, base: FitResult, cands: list[Candidate], cause: Candid
 
         dofs = sorted({damping_diagonal(k) for k in cause.settled.extras.get("held_at_file", [])} - {None})
         names = ", ".join(cause.settled.extras["nu_names"][i] for i in dofs)  # type: ignore[index]
-        text += (f" The model taken away keeps the vessel file's damping of {names}, which the log cannot "
-                 f"tell and does not reject (held-out NRMSE {cause.fit.nrmse_validation:.3g} -> "
-                 f"{cause.settled.nrmse_validation:.3g}).")
+        text += (f" The extended model handed over keeps the vessel file's damping of {names} (this log "
+                 f"cannot determine it and does not contradict the file's value): held-out NRMSE "
+                 f"{cause.fit.nrmse_validation:.3g} -> {cause.settled.nrmse_validation:.3g}.")
     others = (alts or [])[1:]
     likely = [a for a in others if a.weight >= 0.01]
     if alts and likely:

@@ -478,6 +478,7 @@ def summary_lines(obj: Identification | Diagnosis) -> list[str]:
     b = d.baseline
     lines = [f"{trial.label}: baseline {_baseline_name(trial, b)}",
              f"  baseline: {params(b)}; held-out NRMSE {_g(b.nrmse_validation)}, AIC {_g(b.aic, 6)}",
+             *(f"    baseline warning: {w}" for w in b.warnings),  # each under the model it is about
              f"  cause: {' + '.join(d.effects) or d.effect} — {d.evidence}"]
     for a in d.alternatives[1:]:
         if a.weight < 0.01:
@@ -489,9 +490,9 @@ def summary_lines(obj: Identification | Diagnosis) -> list[str]:
     if d.cause and d.cause.fit:
         e = d.extended
         lines.append(f"  extended: {params(e)}; held-out NRMSE {_g(e.nrmse_validation)}, AIC {_g(e.aic, 6)}")
+        lines += [f"    extended warning: {w}" for w in e.warnings if w not in b.warnings]
     if d.skipped:  # what "none" did not cover, on the console too (not only in diagnosis.md)
         lines.append(f"  not tried, not applicable to this trial (why: diagnosis.md): {', '.join(d.skipped)}")
-    lines += [f"  warning: {w}" for w in b.warnings]
     return lines
 
 
