@@ -535,7 +535,12 @@ def _checked(args: argparse.Namespace, iface: str, channel: str, reader: Scenari
     spec = load_vessel(profile.vessel)
     params = _plant_params(getattr(args, "scenario", None), args.set, reader, args.thruster_efficiency, spec,
                            profile.vessel)
-    PlantBlock(spec, dict(params))
+    try:
+        PlantBlock(spec, dict(params))
+    except ValueError as exc:  # a range the plant checks: named by the option that gave the value
+        given = next((f"--thruster-efficiency {item}: " for item in args.thruster_efficiency
+                      if f"'thruster_efficiency_{item.partition('=')[0].strip()}'" in str(exc)), "")
+        raise ValueError(f"{given}{exc}") from None
     sensor_mapping(profile, spec)
     make_thruster_codec(profile, spec)
     faults = [parse_fault(f, [s.name for s in spec.sensors], spec.thrusters.count) for f in args.fault]
@@ -549,7 +554,8 @@ def run_args(args: argparse.Namespace, reader: ScenarioReader | None = None) -> 
     try:
         iface, _, channel = args.can.partition(":")
         if not channel:
-            print("seafmu emulate: error: --can must be INTERFACE:CHANNEL", file=sys.stderr)
+            print(f"seafmu emulate: error: --can {args.can!r}: must be INTERFACE:CHANNEL (e.g. slcan:pty, "
+                  "socketcan:can0)", file=sys.stderr)
             return 2
         profile, params, faults = _checked(args, iface, channel, reader)
         ser_emu, ser_link = _port(args.serial, bridges, f"--serial {args.serial}")

@@ -38,7 +38,11 @@ def plant_set_values(vessel: str, sets: list[str]) -> dict[str, Any]:
         try:
             if "=" not in item or not item.split("=", 1)[0].strip():
                 raise ScenarioError(f"--set {item}: must read NAME=VALUE (e.g. current_speed=0.4kn)")
-            o = parse_override(f"plant.{item.strip()}")
+            text = item.strip()
+            try:
+                o = parse_override(text if text.startswith("plant.") else f"plant.{text}")  # run's, or short
+            except ScenarioError as exc:  # its reason, with the item as given
+                raise ScenarioError(f"--set {item}: {str(exc).split(': ', 1)[-1]}") from None
             if o.time is not None:
                 raise ScenarioError(f"--set {item}: the emulator takes no timed values (NAME@TIME)")
             info = variables.get(o.variable)
@@ -49,7 +53,7 @@ def plant_set_values(vessel: str, sets: list[str]) -> dict[str, Any]:
                                     f"{did_you_mean(o.variable, variables)}")
             out[o.variable] = convert_parameter(o.value, info, f"--set {item}")
         except ScenarioError as exc:
-            raise ValueError(str(exc).replace("--set plant.", "--set ", 1)) from None
+            raise ValueError(str(exc)) from None
     return out
 
 

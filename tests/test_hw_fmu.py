@@ -193,14 +193,15 @@ def test_emulator_set_takes_units_as_run_does() -> None:
     from seafmu.hardware.emulator import ScenarioReader
 
     reader = ScenarioReader(scenario_plant_parameters, plant_set_values)
-    params = _plant_params(None, ["current_speed=0.4kn", "current_direction=90 deg", "seed=3"], reader,
-                           vessel="minerva2")
+    params = _plant_params(None, ["current_speed=0.4kn", "plant.current_direction=90 deg", "seed=3"], reader,
+                           vessel="minerva2")  # the plant. of run's --set may be given
     assert params == {"current_speed": pytest.approx(0.4 * 1852 / 3600),
                       "current_direction": pytest.approx(math.pi / 2), "seed": 3}
     for item, why in (("current_speed=30kn", "is above the maximum 10"), ("curent_speed=1", "did you mean"),
                       ("current_speed=2 deg", "current_speed=2 deg"), ("seed=1.5", "expected a whole number"),
                       ("current_speed@3=1", "no timed values"), ("current_speed", "must read NAME=VALUE"),
-                      ("vessel_file=x.yaml", "its VESSEL argument")):
+                      ("vessel_file=x.yaml", "its VESSEL argument"), ("plant.curent_speed=1", "did you mean"),
+                      ("current_speed=", "no value after")):
         with pytest.raises(ValueError, match=why) as exc:
             _plant_params(None, [item], reader, vessel="minerva2")
         assert "\n" not in str(exc.value) and str(exc.value).startswith(f"--set {item}")
