@@ -58,6 +58,16 @@ def _show(value: object, limit: int = 60) -> str:
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
+def convert(number: float, unit: str, target: str) -> float:
+    """``number`` in ``unit`` expressed in ``target`` (both in the table, of one SI unit); UnitError
+    if they do not convert."""
+    if unit == target:
+        return number
+    if unit not in _UNITS or target not in _UNITS or _UNITS[unit][0] != _UNITS[target][0]:
+        raise UnitError(f"'{unit}' does not convert to '{target}'")
+    return number * _UNITS[unit][1] / _UNITS[target][1]
+
+
 def to_si(value: object, target_unit: str) -> float:
     """Convert a number or a ``"<number> <unit>"`` string to ``target_unit``.
 

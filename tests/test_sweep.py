@@ -7,6 +7,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import re
 import shlex
 import signal
 import subprocess
@@ -20,7 +21,7 @@ import pytest
 from test_run_robustness import _default_signals
 
 from seafmu.cli import main
-from seafmu.sweep.study import load_study
+from seafmu.sweep.study import StudyError, load_study
 
 SCENARIO = """name: sweep_dp
 vessel: minerva2
@@ -357,6 +358,23 @@ def test_numbers_with_an_exponent_are_numbers(tmp_path: Path) -> None:
     assert sorted({c.inputs["controller.kp_north"] for c in s.cases}) == [25.0, 50.0, 100.0]
     assert all(0.01 <= c.inputs["plant.current_speed"] <= 0.2 for c in s.cases)
     assert "controller.kp_north=100.0" in s.cases[0].overrides
+
+
+def test_values_in_units_that_convert_are_taken_in_the_first_one_s(tmp_path: Path) -> None:
+    """``[0.1 m/s, 0.4 kn]`` is two speeds, in m/s (the first unit given), as a scenario's
+    quantities convert; a bare number beside quantities in two units, or units that do not convert,
+    are one line."""
+    path = _write(tmp_path, 8, "name: u\nscenario: base.yaml\nvary:\n"
+                  "  plant.current_speed: {values: [0.1 m/s, 0.4 kn]}\n")
+    s = load_study(path)
+    assert [c.inputs["plant.current_speed"] for c in s.cases] == pytest.approx([0.1, 0.4 * 1852 / 3600])
+    assert s.cases[1].overrides == [f"plant.current_speed={0.4 * 1852 / 3600!r} m/s"]
+    for values, why in (("[0.1 m/s, 0.4 kn, 0.2]", "mixes bare numbers with units (m/s, kn)"),
+                        ("[0.1 m/s, 2 deg]", "mixes units deg, m/s ('deg' does not convert to 'm/s')")):
+        _write(tmp_path, 8, "name: u\nscenario: base.yaml\nvary:\n"
+               f"  plant.current_speed: {{values: {values}}}\n")
+        with pytest.raises(StudyError, match=re.escape(why)):
+            load_study(path)
 
 
 def test_dry_run_and_case_design(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

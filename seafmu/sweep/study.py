@@ -250,10 +250,20 @@ def _quantity(x: float | str, unit: str | None, path: Path, where: str) -> tuple
 
 
 def _same_unit(pairs: list[tuple[float, str]], path: Path, where: str) -> tuple[list[float], str]:
-    units = {u for _, u in pairs if u}
-    if len(units) > 1:
-        raise _fail(path, where, f"mixes units {', '.join(sorted(units))}; give all values in one unit")
-    return [x for x, _ in pairs], (units.pop() if units else "")
+    """The values in one unit, the first one given (``[0.1 m/s, 0.4 kn]``: m/s); units that do not
+    convert (or a bare number beside a quantity) are one line."""
+    from seafmu.units import UnitError, convert
+
+    units = list(dict.fromkeys(u for _, u in pairs if u))
+    if len(units) <= 1:
+        return [x for x, _ in pairs], (units[0] if units else "")
+    if any(not u for _, u in pairs):
+        raise _fail(path, where, f"mixes bare numbers with units ({', '.join(units)}); give every value "
+                    "its unit")
+    try:
+        return [convert(x, u, units[0]) for x, u in pairs], units[0]
+    except UnitError as exc:
+        raise _fail(path, where, f"mixes units {', '.join(sorted(units))} ({exc})") from None
 
 
 def _text(x: Scalar, unit: str) -> str:
