@@ -8,6 +8,7 @@ added mass from damping) and how to say the finding in words a naval architect w
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -127,12 +128,19 @@ def fit_bounds(trial: Trial) -> dict[str, tuple[float, float]]:
     return effects.bounds("static" if trial.kind == "static" else "timeseries")
 
 
+def held_out_words(base_val: float, ext_val: float) -> str:
+    """The held-out NRMSE before and after, and their ratio; a baseline that diverges said so (as the
+    report and the JSON say it: not "inf", "ratio inf")."""
+    if math.isfinite(base_val):
+        return f"held-out NRMSE {base_val:.3g} -> {ext_val:.3g}, ratio {base_val / ext_val:.2f}"
+    return f"held-out NRMSE: the baseline diverges -> {ext_val:.3g}"
+
+
 def evidence(name: str, params: dict[str, float], trial: Trial, base_val: float, ext_val: float,
              delta_aic: float, runner_up: str | None = None, form: str | None = None) -> str:
     """One sentence naming the cause in a naval architect's words, with the numbers that back it
     (``form``: the physical form it was fitted in, where it has several)."""
     text = finding(name, params, trial) + (f", fitted with {form}" if form else "")
-    gain = (f" (held-out NRMSE {base_val:.3g} -> {ext_val:.3g}, ratio {base_val / ext_val:.2f}, "
-            f"dAIC {delta_aic:.1f})") if ext_val > 0 else ""
+    gain = f" ({held_out_words(base_val, ext_val)}, dAIC {delta_aic:.1f})" if ext_val > 0 else ""
     alias = f"; '{runner_up}' explains the data almost as well" if runner_up else ""
     return text[0].upper() + text[1:] + gain + alias + "."

@@ -1296,8 +1296,8 @@ def explain(trial: Trial, base: FitResult, cands: list[Candidate], cause: Candid
             parts.append(catalogue.finding(cause.effects[i], own, trial))
         listed = "; ".join(f"({i + 1}) {p}" for i, p in enumerate(parts)) + (f"; fitted with {form}"
                                                                                if form else "")
-        text = (f"{len(order)} effects act together: {listed} (combined: held-out NRMSE "
-                f"{base.nrmse_validation:.3g} -> {cause.fit.nrmse_validation:.3g}, ratio {cause.ratio:.2f}, "
+        text = (f"{len(order)} effects act together: {listed} (combined: "
+                f"{catalogue.held_out_words(base.nrmse_validation, cause.fit.nrmse_validation)}, "
                 f"dAIC {cause.delta_aic:.1f}).")
     if cause.settled is not None:
         from seafmu.identification.maneuver.estimation import damping_diagonal

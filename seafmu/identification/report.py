@@ -316,8 +316,12 @@ def fit_table(fit: FitResult, trial: Trial) -> list[str]:
 
 
 def _header(trial: Trial, title: str) -> list[str]:
+    from seafmu.identification.effects.base import vessel_dof
+
+    dof = trial.dof if trial.dof is not None else vessel_dof(trial)  # a maneuver log: its vessel's
     return [f"# {title}: {trial.name}", "",
-            f"- kind: {trial.kind}, DOF: {trial.dof}, baseline model: {trial.baseline}",
+            f"- kind: {trial.kind}, DOF: {dof if dof is not None else 'not stated'}, "
+            f"baseline model: {trial.baseline}",
             f"- data: {', '.join(str(f) for f in trial.files) or '(in memory)'}",
             f"- provenance: {trial.provenance}",
             *([f"- description: {' '.join(trial.description.split())}"] if trial.description else []), ""]
