@@ -476,7 +476,8 @@ def build_parser(p: argparse.ArgumentParser | None = None,
     )
     p.add_argument(
         "--duration", type=_positive_seconds,
-        help="stop after this much vessel time, s (default: until Ctrl-C)",
+        help="stop after this much vessel time, s; the vessel's clock starts at the first thruster "
+             "command (default: until Ctrl-C)",
     )
     p.add_argument("--record", type=_nonempty,
                    help="CSV file for the true state (what a real vessel cannot tell)")

@@ -135,7 +135,7 @@ def read_mapping(path: Path, what: str, error: type[ValueError],
         doc = yaml.load(text, Loader=_UniqueKeyLoader)
         _check_expanded(doc)
     except yaml.YAMLError as exc:
-        first = str(exc).replace("\n", " ").strip()
+        first = str(exc).replace("\n", " ").strip().replace('in "<unicode string>", ', "at ")  # read as text
         if isinstance(exc, yaml.constructor.ConstructorError) and exc.problem:
             first = exc.problem
         raise error(f"{path}: not valid YAML ({' '.join(first.split())})") from None

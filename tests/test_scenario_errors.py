@@ -202,8 +202,9 @@ def test_duplicate_keys_and_bad_encoding(tmp_path: Path) -> None:
 
 
 def test_not_yaml_and_not_a_mapping(tmp_path: Path) -> None:
-    with pytest.raises(ScenarioError, match="not valid YAML"):
+    with pytest.raises(ScenarioError, match="not valid YAML") as exc:
         load_scenario(_write(tmp_path, "name: [unclosed\n"))
+    assert "<unicode string>" not in str(exc.value) and "at line 1, column 7" in str(exc.value)
     with pytest.raises(ScenarioError, match="expected a mapping"):
         load_scenario(_write(tmp_path, "- a\n- b\n"))
 
