@@ -786,7 +786,7 @@ class HardwareLink:
     def _of_frozen_fix(self, name: str, talker: str, now: float) -> bool:
         """Is this untimed sentence the velocity of a fix that repeats? Only a sentence that carries
         nothing but a fix's course and speed (VTG), of a talker whose last timed sentence was an old
-        fix again within the watchdog timeout: heading, depth or attitude of another device under
+        fix again within ``FROZEN_FIX_HOLD``: heading, depth or attitude of another device under
         the same talker (a GNSS compass's $GPHDT, a multiplexer's $II) are never held to it, and a
         receiver that stops sending timed sentences is held to its last one for ``FROZEN_FIX_HOLD``
         only."""

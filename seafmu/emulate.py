@@ -42,7 +42,9 @@ def plant_set_values(vessel: str, sets: list[str]) -> dict[str, Any]:
             try:
                 o = parse_override(text if text.startswith("plant.") else f"plant.{text}")  # run's, or short
             except ScenarioError as exc:  # its reason, with the item as given
-                raise ScenarioError(f"--set {item}: {str(exc).split(': ', 1)[-1]}") from None
+                full = text if text.startswith("plant.") else f"plant.{text}"
+                why = str(exc).removeprefix(f"--set {full!r}: ").removeprefix(f"--set {full}: ")
+                raise ScenarioError(f"--set {item}: {why}") from None
             if o.time is not None:
                 raise ScenarioError(f"--set {item}: the emulator takes no timed values (NAME@TIME)")
             info = variables.get(o.variable)

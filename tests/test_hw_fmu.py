@@ -201,7 +201,7 @@ def test_emulator_set_takes_units_as_run_does() -> None:
                       ("current_speed=2 deg", "current_speed=2 deg"), ("seed=1.5", "expected a whole number"),
                       ("current_speed@3=1", "no timed values"), ("current_speed", "must read NAME=VALUE"),
                       ("vessel_file=x.yaml", "its VESSEL argument"), ("plant.curent_speed=1", "did you mean"),
-                      ("current_speed=", "no value after")):
+                      ("current_speed=", "no value after"), ("current_speed=x: y", "the value must be")):
         with pytest.raises(ValueError, match=why) as exc:
             _plant_params(None, [item], reader, vessel="minerva2")
         assert "\n" not in str(exc.value) and str(exc.value).startswith(f"--set {item}")

@@ -65,7 +65,7 @@ def test_a_dp_run_s_current_and_a_lost_thruster_are_named(tmp_path: Path, scenar
         from seafmu.identification.report import write_diagnosis_report
 
         md = write_diagnosis_report(d, tmp_path / "report").read_text()
-        assert f"**Cause: `{d.effects[0]}` + `{d.effects[1]}`**" in md  # both effects, not only the main one
+        assert "**Cause: `current` + `thruster_loss (eta_T[3])`**" in md  # both, not only the main one
 
 
 def test_only_damping_the_log_cannot_tell_is_left_at_the_file_s() -> None:
@@ -98,3 +98,15 @@ def test_the_file_s_damping_is_kept_only_where_the_log_does_not_reject_it() -> N
     kept, stat = file_not_rejected({**free, "dof_inflation": [1.0, 1.0, 20.0]}, held, 2)
     assert kept and stat == pytest.approx(5000 * math.log(1.01) / 20)
     assert file_not_rejected(free, {"dof_rss": [100.0, 1.0, 1e-4]}, 2) == (True, 0.0)
+
+
+def test_held_out_words_say_what_a_number_cannot() -> None:
+    """A baseline that diverges is said so; an extension with no held-out error, or one that diverges,
+    is never a division (the finding is one sentence whatever the fits gave)."""
+    from seafmu.identification.catalogue import held_out_words
+
+    assert held_out_words(1.09, 0.223) == "held-out NRMSE 1.09 -> 0.223, ratio 4.89"
+    assert held_out_words(math.inf, 0.223) == "held-out NRMSE: the baseline diverges -> 0.223"
+    assert held_out_words(1.09, 0.0) == "held-out NRMSE 1.09 -> 0"
+    assert held_out_words(1.09, math.inf) == "held-out NRMSE 1.09 -> diverges"
+    assert held_out_words(math.nan, 0.5) == "held-out NRMSE none -> 0.5"

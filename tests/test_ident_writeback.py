@@ -197,9 +197,10 @@ def test_a_written_file_that_replays_worse_says_so_and_why() -> None:
 
     from seafmu.identification.cli import _worse_note
 
-    params = {"D_L[5,5]": 21.7, "D_Q[1,1]": 941.0, "v_c_north": 0.0707, "eta_T[3]": 0.604}
+    params = {"D_L[5,5]": 21.7, "D_Q[1,1]": 941.0, "Y_r": -15.0, "v_c_north": 0.0707, "eta_T[3]": 0.604}
     fit = SimpleNamespace(params=params)
     note = _worse_note(fit, SimpleNamespace(ratio=0.888))  # type: ignore[arg-type]
     assert note.startswith("warning: the written file replays this trial worse") and "0.888x" in note
-    assert "v_c_north = 0.0707, eta_T[3] = 0.604" in note and "D_L" not in note
+    assert "v_c_north = 0.0707, eta_T[3] = 0.604 are no vessel-file properties" in note
+    assert "D_L" not in note and "Y_r" not in note  # written to the file (coupling: its D entries)
     assert "\n" not in note

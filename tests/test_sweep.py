@@ -362,14 +362,18 @@ def test_numbers_with_an_exponent_are_numbers(tmp_path: Path) -> None:
 
 def test_values_in_units_that_convert_are_taken_in_the_first_one_s(tmp_path: Path) -> None:
     """``[0.1 m/s, 0.4 kn]`` is two speeds, in m/s (the first unit given), as a scenario's
-    quantities convert; a bare number beside quantities in two units, or units that do not convert,
-    are one line."""
+    quantities convert; a bare number beside a quantity (SI in a scenario, it would not be here), or
+    units that do not convert, are one line."""
     path = _write(tmp_path, 8, "name: u\nscenario: base.yaml\nvary:\n"
                   "  plant.current_speed: {values: [0.1 m/s, 0.4 kn]}\n")
     s = load_study(path)
     assert [c.inputs["plant.current_speed"] for c in s.cases] == pytest.approx([0.1, 0.4 * 1852 / 3600])
     assert s.cases[1].overrides == [f"plant.current_speed={0.4 * 1852 / 3600!r} m/s"]
-    for values, why in (("[0.1 m/s, 0.4 kn, 0.2]", "mixes bare numbers with units (m/s, kn)"),
+    grid = _write(tmp_path, 8, "name: u\nscenario: base.yaml\nvary:\n"
+                  "  plant.current_speed: {grid: {start: 0.1 m/s, stop: 0.4 kn, num: 2}}\n")
+    assert [c.inputs["plant.current_speed"] for c in load_study(grid).cases] == pytest.approx(
+        [0.1, 0.4 * 1852 / 3600])  # a grid's stop in its own unit, not taken as m/s
+    for values, why in (("[0.1, 0.4 kn]", "mixes bare numbers with units (kn)"),
                         ("[0.1 m/s, 2 deg]", "mixes units deg, m/s ('deg' does not convert to 'm/s')")):
         _write(tmp_path, 8, "name: u\nscenario: base.yaml\nvary:\n"
                f"  plant.current_speed: {{values: {values}}}\n")

@@ -131,9 +131,14 @@ def fit_bounds(trial: Trial) -> dict[str, tuple[float, float]]:
 def held_out_words(base_val: float, ext_val: float) -> str:
     """The held-out NRMSE before and after, and their ratio; a baseline that diverges said so (as the
     report and the JSON say it: not "inf", "ratio inf")."""
-    if math.isfinite(base_val):
+    def shown(x: float) -> str:
+        return f"{x:.3g}" if math.isfinite(x) else ("diverges" if x > 0 else "none")
+
+    if math.isfinite(base_val) and math.isfinite(ext_val) and ext_val > 0:
         return f"held-out NRMSE {base_val:.3g} -> {ext_val:.3g}, ratio {base_val / ext_val:.2f}"
-    return f"held-out NRMSE: the baseline diverges -> {ext_val:.3g}"
+    if math.isinf(base_val) and math.isfinite(ext_val):
+        return f"held-out NRMSE: the baseline diverges -> {ext_val:.3g}"
+    return f"held-out NRMSE {shown(base_val)} -> {shown(ext_val)}"
 
 
 def evidence(name: str, params: dict[str, float], trial: Trial, base_val: float, ext_val: float,

@@ -283,14 +283,14 @@ def close_loop(trial: Trial, fit: FitResult, out_path: Path, method: str,
 
 
 def _worse_note(fit: FitResult, rep: Any) -> str:
-    """Why a written file can replay worse: what the fit holds beside the file's matrices (an
-    effect's parameters: a lost thruster's efficiency, a current) is no vessel-file property and is
-    not written, and the damping fitted beside it does not stand alone."""
-    other = [f"{k} = {v:.4g}" for k, v in fit.params.items() if not re.match(r"^(D_L|D_Q|M|M_A)\[", k)]
-    why = (f"; the fit's other parameters ({', '.join(other[:4])}{', ...' if len(other) > 4 else ''}) are "
-           "no vessel-file properties and were not written, and the damping fitted beside them does not "
-           "stand alone (a scenario sets them: e.g. plant.thruster_efficiency_i, plant.current_speed)"
-           if other else "")
+    """Why a written file can replay worse: what the fit holds that a scenario sets, not a vessel file
+    (a lost thruster's efficiency, a current, a steady force), is not in it, and the damping fitted
+    beside it does not stand alone."""
+    # a lost thruster's efficiency, a current, a steady force: what a scenario sets, no vessel file
+    other = [f"{k} = {v:.4g}" for k, v in fit.params.items() if re.match(r"^(eta_T\[|v_c_|F_0\[)", k)]
+    why = (f"; the fit's {', '.join(other[:4])}{', ...' if len(other) > 4 else ''} are no vessel-file "
+           "properties and are not in it, and the damping fitted beside them does not stand alone (a "
+           "scenario sets them: e.g. plant.thruster_efficiency_i, plant.current_speed)" if other else "")
     return (f"warning: the written file replays this trial worse than the one it started from (gain "
             f"{rep.ratio:.3g}x){why}")
 

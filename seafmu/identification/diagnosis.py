@@ -438,7 +438,7 @@ def _diagnose(trial: Trial, effects: list[str] | None, rule: Rule, combinations:
         cands += search_combinations(trial, base, cands, rule, t0)
     cause = choose(cands, rule)
     if cause is not None and trial.kind == "maneuver":
-        _settle(trial, cause)
+        _settle(trial, base, cause, rule)
     if cause is not None and cause.fit is not None:  # its residual tested as the baseline's was
         from seafmu.identification.maneuver.fit import complete_whiteness
 
@@ -448,7 +448,7 @@ def _diagnose(trial: Trial, effects: list[str] | None, rule: Rule, combinations:
     return Diagnosis(trial, base, cands, skipped, cause, evidence, rule, time.perf_counter() - t0, alts)
 
 
-def _settle(trial: Trial, cause: Candidate) -> None:
+def _settle(trial: Trial, base: FitResult, cause: Candidate, rule: Rule) -> None:
     """The cause's model fitted again with the damping of the DOFs the log cannot tell held at the
     vessel file's (``maneuver.estimation.holding_untold_damping``), as ``cause.settled`` where the log does
     not reject the file's values: the model a user takes away. The candidates are compared, and the
@@ -467,7 +467,10 @@ def _settle(trial: Trial, cause: Candidate) -> None:
         return
     held = fit_maneuver(trial, "output_error", effect=obj, start=dict(fit.params), noise_null=False,
                         untold_at_file=True)
-    if held.extras.get("held_at_file"):
+    # handed over only if it too passes the rule against the baseline (never judged on held-out data
+    # against the free fit: that choice would be made on the data that measures it)
+    if held.extras.get("held_at_file") and judge(cause.effect, base, held, trial, rule, 0.0,
+                                                 cause.groups).accepted:
         cause.settled = held
 
 

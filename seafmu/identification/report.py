@@ -362,7 +362,8 @@ def write_diagnosis_report(diag: Diagnosis, out: Path) -> Path:
         lines += ["- the diagnosis baseline is the output-error fit: the extensions are output-error fits, "
                   "and an LS baseline would credit the method, not the effect", ""]
     j = diag.to_json()
-    named = " + ".join(f"`{e}`" for e in diag.effects) or f"`{effect}`"  # every effect of the cause
+    # every effect of the cause, a located one with its parameter (two lost thrusters: both named)
+    named = " + ".join(f"`{e}`" for e in diag.cause.label().split("+")) if diag.cause else f"`{effect}`"
     lines += ["## Answer", "", f"**Cause: {named}** — {diag.evidence}", ""]
     if diag.cause:
         g = j["gain"]

@@ -255,11 +255,11 @@ def _same_unit(pairs: list[tuple[float, str]], path: Path, where: str) -> tuple[
     from seafmu.units import UnitError, convert
 
     units = list(dict.fromkeys(u for _, u in pairs if u))
+    if units and any(not u for _, u in pairs):  # a bare number is SI in a scenario, here it would not be
+        raise _fail(path, where, f"mixes bare numbers with units ({', '.join(units)}); give every value "
+                    "its unit, or the input a unit:")
     if len(units) <= 1:
         return [x for x, _ in pairs], (units[0] if units else "")
-    if any(not u for _, u in pairs):
-        raise _fail(path, where, f"mixes bare numbers with units ({', '.join(units)}); give every value "
-                    "its unit")
     try:
         return [convert(x, u, units[0]) for x, u in pairs], units[0]
     except UnitError as exc:
@@ -298,7 +298,7 @@ def _axis(name: str, inp: Input, path: Path) -> tuple[list[Scalar], str]:
     assert g is not None
     (a, ua), (b, ub) = (_quantity(g.start, inp.unit, path, f"{where}.grid.start"),
                         _quantity(g.stop, inp.unit, path, f"{where}.grid.stop"))
-    _, unit = _same_unit([(a, ua), (b, ub)], path, f"{where}.grid")
+    (a, b), unit = _same_unit([(a, ua), (b, ub)], path, f"{where}.grid")
     if not (math.isfinite(a) and math.isfinite(b)):
         raise _fail(path, f"{where}.grid", f"start and stop must be finite (got {a:g}, {b:g})")
     pts = [float(v) for v in np.linspace(a, b, g.num)]

@@ -1259,5 +1259,5 @@ def _output_error_held(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | N
             # per DOF: the residuals' sum of squares, count and autocorrelation inflation (the
             # likelihood ratio of a hold, ``file_not_rejected``: each DOF its own noise variance)
             "dof_rss": np.sum(r.reshape(-1, d) ** 2, axis=0).tolist(), "dof_n": int(r.size // d),
-            "dof_inflation": [_autocorr_inflation(r.reshape(-1, d)[:, j]) for j in range(d)]}
+            "dof_inflation": [] if brief else [_autocorr_inflation(r.reshape(-1, d)[:, j]) for j in range(d)]}
     return M, DL, DQ, names, p, cov, ci, corr, r.size, info
