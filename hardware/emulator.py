@@ -575,8 +575,14 @@ def run_args(args: argparse.Namespace, reader: ScenarioReader | None = None) -> 
         )
         emu.open({"serial": f"--serial {args.serial}", "can": f"--can {args.can}"})
         stop = emu.stop_event
+        stopped_by: list[str] = []
+
+        def on_signal(signum: int, _frame: object) -> None:
+            stopped_by.append(signal.Signals(signum).name)
+            stop.set()
+
         for sig in (signal.SIGINT, signal.SIGTERM):
-            signal.signal(sig, lambda *_: stop.set())
+            signal.signal(sig, on_signal)
         print(f"READY serial={ser_link} can={iface}:{can_link}", flush=True)
         print(
             f"seafmu emulate: {emu.spec.name} waiting for the first thruster command "
@@ -585,6 +591,11 @@ def run_args(args: argparse.Namespace, reader: ScenarioReader | None = None) -> 
             flush=True,
         )
         emu.run(args.duration)
+        why = stopped_by[0] if stopped_by else f"--duration {args.duration:g} s"
+        when = f"at vessel time {emu.t:.2f} s" if emu.started else "before the first thruster command"
+        counted = ", ".join(f"{k} {v}" for k, v in sorted(emu.counters.items()))
+        print(f"seafmu emulate: stopped ({why}) {when}" + (f"; counted: {counted}" if counted else ""),
+              file=sys.stderr, flush=True)  # one line: what ended it, and what went wrong meanwhile
         return 0
     except (OSError, ValueError, HardwareError) as exc:  # ProfileError is a ValueError
         print(f"seafmu emulate: error: {str(exc).splitlines()[0]}", file=sys.stderr)

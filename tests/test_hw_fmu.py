@@ -175,6 +175,7 @@ def test_emulator_takes_the_whole_can_part_of_a_users_profile(tmp_path: Path) ->
         proc.send_signal(signal.SIGTERM)
         _, err = proc.communicate(timeout=10)
     assert proc.returncode == 0 and "TIMEOUT" not in err, err
+    assert "seafmu emulate: stopped (SIGTERM) at vessel time" in err, err  # one closing line
     other = subprocess.run(
         [sys.executable, "-m", "seafmu.hardware.emulator", "amv_osf", "--serial", "pty", "--can", "slcan:pty",
          "--profile", "emulator_pty"],
