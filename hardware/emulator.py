@@ -312,15 +312,14 @@ def _port(spec: str, bridges: list[NullModem], option: str = "--serial") -> tupl
 class ScenarioReader:
     """What the layer that reads scenarios (``seafmu.emulate``) lends the emulator, which never
     imports it: a scenario's plant parameters by name (``--scenario``), and ``--set`` values read as
-    ``seafmu run --set`` reads them, units and ranges (vessel, items -> values)."""
+    ``seafmu run --set`` reads them, units and ranges (the vessel, loaded; items -> values)."""
 
     plant_parameters: Callable[[str], dict[str, Any]]
-    set_values: Callable[[str, list[str]], dict[str, Any]]
+    set_values: Callable[[VesselSpec, list[str]], dict[str, Any]]
 
 
 def _plant_params(scenario: str | None, sets: list[str], reader: ScenarioReader | None = None,
-                  efficiencies: list[str] | None = None, spec: VesselSpec | None = None,
-                  vessel: str | None = None) -> dict[str, Any]:
+                  efficiencies: list[str] | None = None, spec: VesselSpec | None = None) -> dict[str, Any]:
     """The plant's parameters: the scenario's, then ``--set NAME=VALUE`` (with units where the
     scenario reader is lent, else SI numbers), then ``--thruster-efficiency I=FRACTION`` (a fouled
     or damaged thruster, 1-based I); the plant checks names and ranges."""
@@ -333,8 +332,8 @@ def _plant_params(scenario: str | None, sets: list[str], reader: ScenarioReader 
         own = params.pop("vessel_file", None)
         if own is not None and spec is not None and (theirs := load_vessel(own).name) != spec.name:
             raise ValueError(f"--scenario {scenario}: a scenario of vessel '{theirs}', not '{spec.name}'")
-    if reader is not None and vessel is not None:
-        params.update(reader.set_values(vessel, sets))
+    if reader is not None and spec is not None:
+        params.update(reader.set_values(spec, sets))
     else:
         for item in sets:
             key, _, value = item.partition("=")
@@ -534,8 +533,7 @@ def _checked(args: argparse.Namespace, iface: str, channel: str, reader: Scenari
     if args.command_timeout is not None:
         profile = profile.model_copy(update={"command_timeout": args.command_timeout})
     spec = load_vessel(profile.vessel)
-    params = _plant_params(getattr(args, "scenario", None), args.set, reader, args.thruster_efficiency, spec,
-                           profile.vessel)
+    params = _plant_params(getattr(args, "scenario", None), args.set, reader, args.thruster_efficiency, spec)
     try:
         PlantBlock(spec, dict(params))
     except ValueError as exc:  # a range the plant checks: named by the option that gave the value

@@ -23,7 +23,7 @@ def scenario_plant_parameters(scenario: str) -> dict[str, Any]:
     return {"vessel_file": sc.vessel, **plant.parameters}  # the plant's own vessel file, if it names one
 
 
-def plant_set_values(vessel: str, sets: list[str]) -> dict[str, Any]:
+def plant_set_values(spec: Any, sets: list[str]) -> dict[str, Any]:
     """``--set NAME=VALUE`` for the emulator's plant, read as ``seafmu run --set plant.NAME=VALUE``
     reads it: a quantity in any unit of the table (``current_speed=0.4kn``, ``current_direction=45deg``)
     or a bare number in the parameter's SI unit, its name and range checked; a bad one is a one-line
@@ -31,7 +31,7 @@ def plant_set_values(vessel: str, sets: list[str]) -> dict[str, Any]:
     from seafmu.components.names import did_you_mean
     from seafmu.scenario import ScenarioError, convert_parameter, interface_variables, parse_override
 
-    variables = {k: v for k, v in interface_variables(vessel, "plant").items()
+    variables = {k: v for k, v in interface_variables(spec.name, "plant", spec).items()
                  if v.causality == "parameter" and k != "vessel_file"}  # the emulator's own vessel
     out: dict[str, Any] = {}
     for item in sets:
@@ -39,10 +39,10 @@ def plant_set_values(vessel: str, sets: list[str]) -> dict[str, Any]:
             if "=" not in item or not item.split("=", 1)[0].strip():
                 raise ScenarioError(f"--set {item}: must read NAME=VALUE (e.g. current_speed=0.4kn)")
             text = item.strip()
+            full = text if text.startswith("plant.") else f"plant.{text}"  # run's form, or the short one
             try:
-                o = parse_override(text if text.startswith("plant.") else f"plant.{text}")  # run's, or short
+                o = parse_override(full)
             except ScenarioError as exc:  # its reason, with the item as given
-                full = text if text.startswith("plant.") else f"plant.{text}"
                 why = str(exc).removeprefix(f"--set {full!r}: ").removeprefix(f"--set {full}: ")
                 raise ScenarioError(f"--set {item}: {why}") from None
             if o.time is not None:

@@ -15,6 +15,7 @@ from fmpy import extract, read_model_description
 from fmpy.fmi2 import FMU2Slave
 from fmpy.validation import validate_fmu
 
+from seafmu.components.vessel_spec import load_vessel
 from seafmu.hardware.cli import register
 from seafmu.hardware.emulator import VesselEmulator, _plant_params, build_parser
 from seafmu.hardware.link_fmu import build_link_fmu
@@ -194,8 +195,9 @@ def test_emulator_set_takes_units_as_run_does() -> None:
     from seafmu.hardware.emulator import ScenarioReader
 
     reader = ScenarioReader(scenario_plant_parameters, plant_set_values)
+    spec = load_vessel("minerva2")
     params = _plant_params(None, ["current_speed=0.4kn", "plant.current_direction=90 deg", "seed=3"], reader,
-                           vessel="minerva2")  # the plant. of run's --set may be given
+                           spec=spec)  # the plant. of run's --set may be given
     assert params == {"current_speed": pytest.approx(0.4 * 1852 / 3600),
                       "current_direction": pytest.approx(math.pi / 2), "seed": 3}
     for item, why in (("current_speed=30kn", "is above the maximum 10"), ("curent_speed=1", "did you mean"),
@@ -204,7 +206,7 @@ def test_emulator_set_takes_units_as_run_does() -> None:
                       ("vessel_file=x.yaml", "its VESSEL argument"), ("plant.curent_speed=1", "did you mean"),
                       ("current_speed=", "no value after"), ("current_speed=x: y", "the value must be")):
         with pytest.raises(ValueError, match=why) as exc:
-            _plant_params(None, [item], reader, vessel="minerva2")
+            _plant_params(None, [item], reader, spec=spec)
         assert "\n" not in str(exc.value) and str(exc.value).startswith(f"--set {item}")
 
 

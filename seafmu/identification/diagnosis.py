@@ -474,12 +474,17 @@ def _settle(trial: Trial, base: FitResult, cause: Candidate, rule: Rule) -> None
         cause.settled = held
 
 
+def _thrust_columns(problem: Any) -> int:
+    """How many thrusters the log gives a column each (0: the generalised force only)."""
+    return problem.prep.thrust.shape[1] if problem.prep.thrust is not None else 0
+
+
 def _effect_object(problem: Any, c: Candidate) -> Any:
     """The effect object a maneuver candidate was fitted with: each effect, a located one as the
     variant its parameters name, combined where several, in the physical form its fit kept (a
     current's inertia); None if one is not a maneuver effect."""
     d = problem.vessel.dof
-    m = problem.prep.thrust.shape[1] if problem.prep.thrust is not None else 0
+    m = _thrust_columns(problem)
     objs = []
     for e, group in c.members():
         obj = effect_objects.get(e)
@@ -695,7 +700,7 @@ def _maneuver_members(trial: Trial, singles: list[Candidate]) -> tuple[list[Any]
     fitted with each (a located effect: only the variant its fit located)."""
     problem = maneuver_problem(trial)
     d = problem.vessel.dof
-    m = problem.prep.thrust.shape[1] if problem.prep.thrust is not None else 0
+    m = _thrust_columns(problem)
     members: list[Any] = []
     single_of: dict[int, Candidate] = {}
     for c in singles:

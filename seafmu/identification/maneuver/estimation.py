@@ -24,7 +24,7 @@ from seafmu.identification.effects import CatalogueEffect
 from seafmu.identification.effects.base import Combined
 from seafmu.identification.maneuver.preprocessing import _Prepared, noise_ratios
 from seafmu.identification.maneuver.simulation import _sim_residual, _SimSetup, _Simulator
-from seafmu.identification.maneuver.statistics import _autocorr_inflation
+from seafmu.identification.maneuver.statistics import _autocorr_factors, _mean_factor
 from seafmu.identification.maneuver.terms import (
     _Restoring,
     _sym,
@@ -1236,7 +1236,8 @@ def _output_error_held(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | N
     _remember_states(log_key, names, p, sol.x[npar:].reshape(S, nx) * x_scale, {**hold, **held_now},
                      float(sol.cost))
     r = sol.fun[maskd.reshape(S, -1)]  # the compared residuals, in time order
-    infl = _autocorr_inflation(r.reshape(-1, d))
+    factors = _autocorr_factors(r.reshape(-1, d))  # per DOF: the inflation, and the hold's test
+    infl = _mean_factor(factors)
     # s^2 (J^T J)^-1 over the free model and initial-state parameters (column-scaled pseudo-inverse),
     # model block, from the Jacobian on the fine grid
     if brief:
@@ -1259,5 +1260,5 @@ def _output_error_held(vessel: VesselSpec, prep: _Prepared, setup: _SimSetup | N
             # per DOF: the residuals' sum of squares, count and autocorrelation inflation (the
             # likelihood ratio of a hold, ``file_not_rejected``: each DOF its own noise variance)
             "dof_rss": np.sum(r.reshape(-1, d) ** 2, axis=0).tolist(), "dof_n": int(r.size // d),
-            "dof_inflation": [] if brief else [_autocorr_inflation(r.reshape(-1, d)[:, j]) for j in range(d)]}
+            "dof_inflation": np.where(np.isfinite(factors), factors, 1.0).tolist()}
     return M, DL, DQ, names, p, cov, ci, corr, r.size, info

@@ -14,11 +14,12 @@ from seafmu.identification.maneuver.simulation import _one, _SimSetup
 from seafmu.identification.maneuver.terms import _sym
 
 
-def _autocorr_inflation(residual: np.ndarray, max_lag: int = 2000) -> float:
-    """1 + 2 sum(rho_k) up to the first non-positive lag, averaged over columns: the factor by
-    which correlated residuals shrink the effective sample size (and widen honest CIs)."""
+def _autocorr_factors(residual: np.ndarray, max_lag: int = 2000) -> np.ndarray:
+    """Per column, 1 + 2 sum(rho_k) up to the first non-positive lag: the factor by which correlated
+    residuals shrink the effective sample size; NaN where a column cannot tell (under 8 finite
+    samples, or constant)."""
     r = residual.reshape(residual.shape[0], -1)
-    factors = []
+    factors = np.full(r.shape[1], np.nan)
     for j in range(r.shape[1]):
         x = r[:, j][np.isfinite(r[:, j])]
         if x.size < 8:
@@ -32,8 +33,20 @@ def _autocorr_inflation(residual: np.ndarray, max_lag: int = 2000) -> float:
         rho = acf[1:] / acf[0]
         stop = np.flatnonzero(rho <= 0.0)
         rho = rho[: stop[0]] if stop.size else rho
-        factors.append(1.0 + 2.0 * float(np.sum(rho)))
-    return float(np.mean(factors)) if factors else 1.0
+        factors[j] = 1.0 + 2.0 * float(np.sum(rho))
+    return factors
+
+
+def _autocorr_inflation(residual: np.ndarray, max_lag: int = 2000) -> float:
+    """``_autocorr_factors`` averaged over the columns that tell: the factor by which correlated
+    residuals widen honest CIs."""
+    return _mean_factor(_autocorr_factors(residual, max_lag))
+
+
+def _mean_factor(factors: np.ndarray) -> float:
+    """The mean of the columns' factors that are known (1 where none is)."""
+    f = factors[np.isfinite(factors)]
+    return float(np.mean(f)) if f.size else 1.0
 
 
 def _whiteness(residual: np.ndarray, names: list[str]) -> dict[str, Any]:
